@@ -1,0 +1,42 @@
+"""Typed errors for bad input: each names the offending file (or object) and the problem in one line.
+
+The CLI catches :class:`NueError`, prints ``error: <message>`` and exits with status 2, so a user
+never sees a traceback for a bad scene folder, episode file or checkpoint.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class NueError(Exception):
+    """Base class: a problem with user input, reported as ``<where>: <problem>``."""
+
+    def __init__(self, where: str | Path | None, problem: str):
+        self.where = str(where) if where is not None else None
+        self.problem = problem
+        super().__init__(f"{self.where}: {problem}" if self.where else problem)
+
+
+class SceneError(NueError):
+    """A scene folder is missing a file or holds a malformed mesh, floors.txt or traversability map."""
+
+
+class EpisodeError(NueError):
+    """An episode (file) is malformed or unusable in its scene: NaN pose, start in a wall, unreachable goal."""
+
+
+class EpisodeGenerationError(NueError):
+    """The episode generator could not fill a difficulty bin of a house within its try budget."""
+
+
+class ConfigError(NueError):
+    """An unknown preset name or an inconsistent configuration."""
+
+
+class CheckpointError(NueError):
+    """A checkpoint that cannot be loaded or does not match the requested presets / scenes."""
+
+
+class DataError(NueError):
+    """A demonstration or record file that is corrupt or truncated."""
