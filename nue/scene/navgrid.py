@@ -1,0 +1,174 @@
+"""Navigation grid of one floor: traversable cells eroded by the robot radius, geodesic fields, shortest paths.
+
+Two resolutions: the 1 cm traversability map eroded by the robot radius decides collisions
+(``is_free``), and a coarser planning grid (default 5 cm; a cell is free only if every 1 cm pixel in
+it is free) carries geodesic distance fields computed with scikit-image's minimum-cost-path
+(8-connected; octile path lengths). Unreachable cells have distance ``inf``.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from skimage.graph import MCP_Geometric
+
+from nue.scene.scene import Scene, trav_pixel_from_world
+
+_NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
+
+
+@dataclass(frozen=True)
+class NavGridConfig:
+    """How a traversability map becomes a navigation grid."""
+
+    robot_radius: float = 0.18
+    """Radius of the robot's disc, metres: free space is eroded by it."""
+    cell_size: float = 0.05
+    """Planning-grid cell size, metres (a multiple of the map's 0.01 m)."""
+    cache_size: int = 64
+    """Number of geodesic distance fields (one per goal cell) kept in memory."""
+
+
+class NavGrid:
+    """Free space of one floor for a disc robot, with cached geodesic distance fields."""
+
+    def __init__(self, trav: np.ndarray, resolution: float = 0.01, config: NavGridConfig = NavGridConfig()):
+        """``trav``: (N, N) bool traversability map (True = free), iGibson convention, ``resolution`` m/pixel."""
+        self.config = config
+        self.resolution = resolution
+        self.n = trav.shape[0]
+        # Erode: a pixel is free for the robot's centre if no obstacle pixel lies within the radius.
+        clearance = ndimage.distance_transform_edt(trav) * resolution
+        self.fine_free = clearance > config.robot_radius
+        """(N, N) bool: where the robot's centre may be (1 cm pixels)."""
+        self.factor = max(1, int(round(config.cell_size / resolution)))
+        self.cell = self.factor * resolution
+        m = -(-self.n // self.factor)
+        padded = np.zeros((m * self.factor, m * self.factor), dtype=bool)
+        padded[: self.n, : self.n] = self.fine_free
+        self.free = padded.reshape(m, self.factor, m, self.factor).all(axis=(1, 3))
+        """(M, M) bool planning grid: cell (r, c) covers fine pixels [r*f, (r+1)*f) x [c*f, (c+1)*f)."""
+        self._costs = np.where(self.free, 1.0, np.inf)
+        self._fields: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
+        labels, count = ndimage.label(self.free, structure=np.ones((3, 3)))
+        self.component = labels
+        """(M, M) int: connected component of each free cell (0 = blocked)."""
+
+    @classmethod
+    def from_scene(cls, scene: Scene, floor: int = 0, config: NavGridConfig = NavGridConfig()) -> "NavGrid":
+        return cls(scene.trav_maps[floor], scene.resolution, config)
+
+    # -- coordinates ---------------------------------------------------------------------------
+    def cell_of(self, xy) -> np.ndarray:
+        """World (x, y) (..., 2) -> planning cell (row, col) (..., 2), int."""
+        return trav_pixel_from_world(xy, self.n, self.resolution) // self.factor
+
+    def cell_centre(self, rc) -> np.ndarray:
+        """Planning cell (row, col) (..., 2) -> world (x, y) (..., 2) of its centre."""
+        rc = np.asarray(rc, dtype=np.float64)
+        x = (rc[..., 1] + 0.5) * self.cell - self.n / 2 * self.resolution
+        y = (rc[..., 0] + 0.5) * self.cell - self.n / 2 * self.resolution
+        return np.stack([x, y], axis=-1)
+
+    def is_free(self, xy) -> bool | np.ndarray:
+        """Whether the robot's centre may stand at world (x, y) (..., 2); outside the map is not free."""
+        rc = trav_pixel_from_world(xy, self.n, self.resolution)
+        inside = np.all((rc >= 0) & (rc < self.n), axis=-1)
+        rcc = np.clip(rc, 0, self.n - 1)
+        ok = inside & self.fine_free[rcc[..., 0], rcc[..., 1]]
+        return bool(ok) if np.ndim(ok) == 0 else ok
+
+    def segment_free(self, a, b, step: float = 0.02) -> bool:
+        """Whether the straight segment from a to b stays in free space (sampled every ``step`` metres)."""
+        a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+        k = max(2, int(np.ceil(np.linalg.norm(b - a) / step)) + 1)
+        pts = a + (b - a) * np.linspace(0.0, 1.0, k)[:, None]
+        return bool(np.all(self.is_free(pts)))
+
+    # -- geodesics -----------------------------------------------------------------------------
+    def distance_field(self, goal_xy) -> np.ndarray:
+        """(M, M) geodesic distance in metres from every planning cell to the goal's cell; inf = unreachable.
+
+        Cached per goal cell (LRU). If the goal's own cell is blocked, the field is all inf.
+        """
+        key = tuple(int(v) for v in self.cell_of(goal_xy))
+        if key in self._fields:
+            self._fields.move_to_end(key)
+            return self._fields[key]
+        field = np.full(self.free.shape, np.inf)
+        if self._in_grid(key) and self.free[key]:
+            costs, _ = MCP_Geometric(self._costs, fully_connected=True).find_costs([key])
+            field = np.where(np.isfinite(costs), costs * self.cell, np.inf)
+        self._fields[key] = field
+        if len(self._fields) > self.config.cache_size:
+            self._fields.popitem(last=False)
+        return field
+
+    def lookup(self, field: np.ndarray, xy) -> float:
+        """Geodesic distance at world (x, y) from a distance field: min over the 3x3 cells around xy
+        of field + straight distance to that cell's centre (handles points near walls whose own cell
+        is blocked)."""
+        xy = np.asarray(xy, dtype=np.float64)
+        rc = self.cell_of(xy)
+        cells = rc + np.vstack([[0, 0], _NEIGHBOURS])
+        m = self.free.shape[0]
+        cells = cells[np.all((cells >= 0) & (cells < m), axis=1)]
+        vals = field[cells[:, 0], cells[:, 1]]
+        ok = np.isfinite(vals)
+        if not ok.any():
+            return float("inf")
+        d = vals[ok] + np.linalg.norm(self.cell_centre(cells[ok]) - xy, axis=1)
+        return float(d.min())
+
+    def geodesic_distance(self, a_xy, b_xy) -> float:
+        """Geodesic distance between two world points (metres); inf if unreachable."""
+        return self.lookup(self.distance_field(b_xy), a_xy)
+
+    def shortest_path(self, start_xy, goal_xy, max_len: int | None = None) -> np.ndarray:
+        """Waypoints (K, 2) in world coordinates from start towards goal along the distance field
+        (steepest descent over 8 neighbours), starting at the start point and ending at the goal.
+        ``max_len`` limits the number of cells followed. Empty (0, 2) if unreachable."""
+        field = self.distance_field(goal_xy)
+        start_xy = np.asarray(start_xy, dtype=np.float64)
+        rc = self._best_cell_near(field, start_xy)
+        if rc is None:
+            return np.zeros((0, 2))
+        m = self.free.shape[0]
+        cells = [rc]
+        limit = max_len if max_len is not None else m * m
+        while field[rc] > 0 and len(cells) < limit:
+            nb = rc + _NEIGHBOURS
+            nb = nb[np.all((nb >= 0) & (nb < m), axis=1)]
+            vals = field[nb[:, 0], nb[:, 1]]
+            i = int(np.argmin(vals))
+            if not vals[i] < field[rc]:
+                break
+            rc = tuple(nb[i])
+            cells.append(rc)
+        pts = self.cell_centre(np.array(cells))
+        if field[rc] == 0:
+            pts = np.vstack([pts, np.asarray(goal_xy, dtype=np.float64)[:2]])
+        return np.vstack([start_xy[:2], pts])
+
+    def _best_cell_near(self, field: np.ndarray, xy) -> tuple[int, int] | None:
+        rc = self.cell_of(xy)
+        cells = rc + np.vstack([[0, 0], _NEIGHBOURS])
+        m = self.free.shape[0]
+        cells = cells[np.all((cells >= 0) & (cells < m), axis=1)]
+        vals = field[cells[:, 0], cells[:, 1]] + np.linalg.norm(self.cell_centre(cells) - xy, axis=1)
+        i = int(np.argmin(vals))
+        return tuple(int(v) for v in cells[i]) if np.isfinite(vals[i]) else None
+
+    def _in_grid(self, rc) -> bool:
+        m = self.free.shape[0]
+        return 0 <= rc[0] < m and 0 <= rc[1] < m
+
+    # -- sampling ------------------------------------------------------------------------------
+    def largest_component_cells(self) -> np.ndarray:
+        """(K, 2) planning cells of the largest connected free component."""
+        counts = np.bincount(self.component.ravel())
+        counts[0] = 0
+        return np.argwhere(self.component == int(np.argmax(counts)))
