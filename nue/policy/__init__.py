@@ -1,0 +1,35 @@
+"""Policy networks: NUE (uncertainty + feature maps of the NeRF memory), its ablations, and the FR / Nav-A3C baselines.
+
+Every model shares one interface (:class:`PolicyModel`)::
+
+    cfg = get_model_config("nue").for_task(task)
+    model = build_model(cfg)
+    inp = prepare_input(rgb, depth, goal_rgb, i_u, i_cog, cfg)     # PolicyInput, batch 1
+    state = model.initial_state(1)
+    actions, state = model.act(inp, state, greedy=False, generator=g)
+    out = model.forward_sequence(batch_TB, state, reset_mask)      # training: logits (T, B, A)
+    loss = F.cross_entropy(...) + lam * angle_l1_loss(out.aux_angle, target)  # aux_angle None without AT
+"""
+
+from nue.policy.base import PolicyModel, PolicyOutput, State, angle_l1_loss, detach_state, wrap_angle_t
+from nue.policy.baselines import FRPolicy, NavA3CPolicy
+from nue.policy.blocks import CBAM, ChannelAttention, ConvBranch, ResidualBlock, SpatialAttention
+from nue.policy.config import ABLATION_PRESETS, MODEL_PRESETS, ModelConfig, get_model_config
+from nue.policy.inputs import PolicyInput, prepare_input
+from nue.policy.nue_model import FusionHead, NUEPolicy
+
+_KINDS: dict[str, type[PolicyModel]] = {"nue": NUEPolicy, "fr": FRPolicy, "nav_a3c": NavA3CPolicy}
+
+
+def build_model(config: ModelConfig | str) -> PolicyModel:
+    """The policy network a config (or preset name) describes, freshly initialised from torch's global RNG."""
+    config = get_model_config(config)
+    return _KINDS[config.kind](config)
+
+
+__all__ = [
+    "ABLATION_PRESETS", "CBAM", "ChannelAttention", "ConvBranch", "FRPolicy", "FusionHead", "MODEL_PRESETS",
+    "ModelConfig", "NUEPolicy", "NavA3CPolicy", "PolicyInput", "PolicyModel", "PolicyOutput", "ResidualBlock",
+    "SpatialAttention", "State", "angle_l1_loss", "build_model", "detach_state", "get_model_config",
+    "prepare_input", "wrap_angle_t",
+]

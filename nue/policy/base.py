@@ -1,0 +1,113 @@
+"""The interface every policy shares (NUE, its ablations, FR, Nav-A3C), so training and evaluation never branch on type.
+
+* ``forward(inp, state, reset_mask) -> PolicyOutput(logits (B, A), aux_angle (B,) | None, state)``
+* ``forward_sequence(inp (T, B, ...), state, reset_mask (T, B)) -> PolicyOutput((T, B, A), (T, B) | None, state)``
+* ``initial_state(batch_size, device)``; ``act(inp, state, greedy, generator) -> (actions (B,), state)``
+
+``state`` is None for the reactive models and the LSTM's ``(h, c)``, each (B, lstm_dim), for
+Nav-A3C. ``reset_mask`` (bool) marks rows whose episode starts at that step: their state is
+replaced by the initial state before the step (reactive models ignore it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from nue.policy.config import ModelConfig
+from nue.policy.inputs import PolicyInput
+
+State = tuple[Tensor, Tensor] | None
+"""Recurrent state: None (reactive models) or the LSTM's (h, c), each (B, hidden)."""
+
+
+@dataclass
+class PolicyOutput:
+    """``logits``: (B, A) (or (T, B, A)) unnormalised action scores; ``aux_angle``: predicted goal
+    angle in radians wrapped to (-pi, pi], (B,) (or (T, B)), None without the auxiliary head;
+    ``state``: the state after the step(s)."""
+
+    logits: Tensor
+    aux_angle: Tensor | None
+    state: State
+
+
+def wrap_angle_t(a: Tensor) -> Tensor:
+    """Differentiable wrap to (-pi, pi]: ``atan2(sin a, cos a)`` (gradient 1 away from the seam)."""
+    return torch.atan2(torch.sin(a), torch.cos(a))
+
+
+def angle_l1_loss(pred: Tensor, target: Tensor) -> Tensor:
+    """Auxiliary-task loss ``mean |wrap(pred - target)|`` in radians.
+
+    Wrapping the difference makes a goal behind the robot (pred = pi - 0.1, target = -pi + 0.1)
+    cost 0.2, not 2 pi - 0.2. Values lie in [0, pi].
+    """
+    return wrap_angle_t(pred - target).abs().mean()
+
+
+def detach_state(state: State) -> State:
+    """Cut the gradient through a recurrent state (truncated BPTT between training chunks)."""
+    return None if state is None else tuple(s.detach() for s in state)  # type: ignore[return-value]
+
+
+class PolicyModel(nn.Module):
+    """Base class: holds the config, implements ``forward_sequence`` by folding T into B, and ``act``."""
+
+    def __init__(self, config: ModelConfig):
+        super().__init__()
+        self.config = config
+
+    def initial_state(self, batch_size: int, device: torch.device | str | None = None) -> State:
+        """State at an episode start (None for reactive models)."""
+        return None
+
+    def forward(self, inp: PolicyInput, state: State = None, reset_mask: Tensor | None = None) -> PolicyOutput:
+        raise NotImplementedError
+
+    def forward_sequence(
+        self, inp: PolicyInput, state: State = None, reset_mask: Tensor | None = None
+    ) -> PolicyOutput:
+        """Run T steps of a (T, B, ...) batch; reactive models fold T into B (one big batch)."""
+        t, b = inp.rgbd.shape[:2]
+        out = self.forward(inp.flatten_time(), None)
+        aux = None if out.aux_angle is None else out.aux_angle.reshape(t, b)
+        return PolicyOutput(out.logits.reshape(t, b, -1), aux, state)
+
+    @torch.no_grad()
+    def act(
+        self,
+        inp: PolicyInput,
+        state: State = None,
+        greedy: bool = False,
+        generator: torch.Generator | None = None,
+        reset_mask: Tensor | None = None,
+    ) -> tuple[Tensor, State]:
+        """Choose actions (B,) long: argmax if ``greedy``, else a sample from softmax(logits) (eq. 14).
+
+        Call ``model.eval()`` first: batch norm uses its running statistics only then.
+        """
+        out = self.forward(inp, state, reset_mask)
+        if greedy:
+            actions = out.logits.argmax(dim=-1)
+        else:
+            probs = torch.softmax(out.logits.float(), dim=-1)
+            actions = torch.multinomial(probs, 1, generator=generator)[:, 0]
+        return actions, out.state
+
+    def _check_input(self, inp: PolicyInput) -> None:
+        c = self.config
+        if inp.rgbd.ndim != 4 or inp.rgbd.shape[1] != 4:
+            raise ValueError(f"rgbd: expected (B, 4, h, w), got {tuple(inp.rgbd.shape)}")
+        if inp.goal.ndim != 4 or inp.goal.shape[1] != 3:
+            raise ValueError(f"goal: expected (B, 3, h, w), got {tuple(inp.goal.shape)}")
+        if c.uses_i_u and inp.i_u is None:
+            raise ValueError(f"model {c.name!r} reads the uncertainty map, but inp.i_u is None")
+        if c.uses_i_cog and inp.i_cog is None:
+            raise ValueError(f"model {c.name!r} reads the feature map, but inp.i_cog is None")
+
+    def num_parameters(self) -> int:
+        """Number of trainable parameters."""
+        return sum(p.numel() for p in self.parameters() if p.requires_grad)

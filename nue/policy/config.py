@@ -1,0 +1,202 @@
+"""Model configs as data: one ``ModelConfig`` per policy, with the paper's ablations and baselines as presets.
+
+A config fully decides the architecture (``build_model(config)`` is deterministic given the torch
+seed), so a checkpoint stores ``config.to_dict()`` and rebuilds the same network from it.
+
+Presets (paper Table I; ``f_u`` = uncertainty branch, ``AT`` = auxiliary goal-angle task):
+
+==============  =====  =====  =====  ==========================================
+preset          f_u    AT     CBAM   note
+==============  =====  =====  =====  ==========================================
+``abl_none``    no     no     no     first ablation row
+``abl_fu``      yes    no     no
+``abl_at_cbam`` no     yes    yes
+``abl_fu_cbam`` yes    no     yes
+``abl_fu_at``   yes    yes    no
+``nue``         yes    yes    yes    full model (last row)
+``fr``          --     no     --     fully reactive: RGB-D + goal -> CNN -> policy
+``nav_a3c``     --     no     --     same encoder as ``fr`` + LSTM memory
+==============  =====  =====  =====  ==========================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from nue.errors import ConfigError
+from nue.sim.task import TaskConfig
+
+MODEL_KINDS = ("nue", "fr", "nav_a3c")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Architecture of one policy network (NUE, an ablation of it, or a baseline)."""
+
+    name: str = "nue"
+    """Preset name, recorded in checkpoints and result tables."""
+    kind: str = "nue"
+    """Model family: ``nue`` (NeRF-memory policy), ``fr`` (fully reactive) or ``nav_a3c`` (CNN + LSTM)."""
+    use_uncertainty: bool = True
+    """NUE only: include the exploration branch f_u on the uncertainty map I_u."""
+    use_aux: bool = True
+    """Include the auxiliary head predicting the goal angle (NUE: from f_cog; baselines: from the policy feature)."""
+    use_cbam: bool = True
+    """NUE only: CBAM attention after the residual blocks of f_u and f_cog."""
+    num_actions: int = 3
+    """Number of discrete actions; take it from the task preset with :meth:`for_task`."""
+
+    map_height: int = 45
+    """Height h of the NeRF maps I_u and I_cog (and of the goal image fed to f_cog)."""
+    map_width: int = 60
+    """Width w of the NeRF maps."""
+    cog_channels: int = 64
+    """Channels of the feature map I_cog rendered by the NeRF memory."""
+    frame_height: int = 90
+    """Height of the live RGB-D frame fed to f_p (and, for baselines, of the goal image)."""
+    frame_width: int = 120
+    """Width of the live RGB-D frame fed to f_p."""
+    max_depth: float = 5.0
+    """Depth enters as ``clip(depth, 0, max_depth) / max_depth``, metres."""
+    uncertainty_scale: float = 1.0
+    """I_u (a rendered variance, >= 0, wide dynamic range) enters f_u as ``log1p(I_u / uncertainty_scale)``."""
+
+    uncertainty_channels: tuple[int, ...] = (8, 16)
+    """Output channels of the residual blocks of f_u (each halves the resolution); the paper's F_u has 16."""
+    cognition_channels: tuple[int, ...] = (32, 32)
+    """Output channels of the residual blocks of f_cog (each halves the resolution)."""
+    map_grid: tuple[int, int] = (6, 8)
+    """Fixed (rows, cols) grid the map branches pool to before CBAM, so any map size works (~h/16 at 90 x 120)."""
+    branch_dim: int = 64
+    """Length of the branch vectors f_u and f_cog (paper: 64)."""
+    cbam_reduction: int = 4
+    """Channel-attention MLP hidden size is ``channels // cbam_reduction`` (at least 1)."""
+    cbam_kernel: int = 3
+    """Spatial-attention conv kernel. CBAM uses 7 on large maps; on the 6 x 8 grid 3 keeps it local."""
+
+    perception_channels: tuple[int, ...] = (16, 32, 32)
+    """Output channels of the residual blocks of the frame encoder (f_p, and the baselines' encoder)."""
+    perception_grid: tuple[int, int] = (6, 8)
+    """Fixed (rows, cols) grid the frame encoder pools to before its MLP."""
+    perception_dim: int = 256
+    """Length of the perception vector f_p (authors: 256); also the baselines' feature length."""
+
+    gate_hidden: int = 128
+    """Hidden width of the fusion attention MLP giving w = sigmoid(MLP(f_cat1)) (eq. 13)."""
+    fusion_dim: int = 256
+    """Length of f_cat2 = MLP(w * f_cat1)."""
+    head_hidden: int = 128
+    """Hidden width of the action head MLP(f_cat2) -> logits (eq. 14)."""
+    aux_hidden: int = 64
+    """Hidden width of the 2-layer auxiliary angle head."""
+    lstm_dim: int = 256
+    """Nav-A3C only: LSTM hidden size."""
+    negative_slope: float = 0.01
+    """Slope of every LeakyReLU."""
+
+    def __post_init__(self) -> None:
+        where = f"model config {self.name!r}"
+        if self.kind not in MODEL_KINDS:
+            raise ConfigError(where, f"unknown kind {self.kind!r}; known: {', '.join(MODEL_KINDS)}")
+        if self.kind != "nue" and (self.use_uncertainty or self.use_cbam):
+            raise ConfigError(where, f"use_uncertainty / use_cbam apply to kind 'nue' only, not {self.kind!r}")
+        if self.num_actions < 2:
+            raise ConfigError(where, f"num_actions must be >= 2, got {self.num_actions}")
+        sizes = (self.map_height, self.map_width, self.frame_height, self.frame_width, *self.map_grid,
+                 *self.perception_grid, self.cog_channels, self.branch_dim, self.perception_dim)
+        if min(sizes) < 1:
+            raise ConfigError(where, "sizes, grids and widths must be positive")
+        if not (self.uncertainty_channels and self.cognition_channels and self.perception_channels):
+            raise ConfigError(where, "each encoder needs at least one residual block")
+        if self.cbam_kernel % 2 != 1:
+            raise ConfigError(where, f"cbam_kernel must be odd, got {self.cbam_kernel}")
+        if self.max_depth <= 0 or self.uncertainty_scale <= 0:
+            raise ConfigError(where, "max_depth and uncertainty_scale must be positive")
+
+    # --- what the model reads -------------------------------------------------------------------
+    @property
+    def uses_i_u(self) -> bool:
+        """The model reads the uncertainty map I_u (so the memory must render it)."""
+        return self.kind == "nue" and self.use_uncertainty
+
+    @property
+    def uses_i_cog(self) -> bool:
+        """The model reads the feature map I_cog."""
+        return self.kind == "nue"
+
+    @property
+    def uses_memory_maps(self) -> bool:
+        """The model needs the NeRF memory at all (False for the baselines)."""
+        return self.uses_i_u or self.uses_i_cog
+
+    @property
+    def map_size(self) -> tuple[int, int]:
+        """(h, w) of I_u and I_cog."""
+        return (self.map_height, self.map_width)
+
+    @property
+    def frame_size(self) -> tuple[int, int]:
+        """(h, w) of the RGB-D frame the model reads."""
+        return (self.frame_height, self.frame_width)
+
+    @property
+    def goal_size(self) -> tuple[int, int]:
+        """(h, w) of the goal image the model reads: the map size for NUE (it joins I_cog), else the frame size."""
+        return self.map_size if self.kind == "nue" else self.frame_size
+
+    @property
+    def recurrent(self) -> bool:
+        """The model carries a state across steps (Nav-A3C)."""
+        return self.kind == "nav_a3c"
+
+    # --- derived configs and serialisation ------------------------------------------------------
+    def for_task(self, task: TaskConfig) -> "ModelConfig":
+        """This config with ``num_actions`` taken from a task preset."""
+        return dataclasses.replace(self, num_actions=len(task.actions))
+
+    def replace(self, **changes: Any) -> "ModelConfig":
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-data form for checkpoints and JSON (tuples become lists)."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "ModelConfig":
+        """Inverse of :meth:`to_dict`; unknown keys are an error."""
+        names = {f.name: f for f in dataclasses.fields(cls)}
+        unknown = set(data) - set(names)
+        if unknown:
+            raise ConfigError("model config", f"unknown field(s): {', '.join(sorted(unknown))}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
+
+_NUE = ModelConfig()
+
+MODEL_PRESETS: dict[str, ModelConfig] = {
+    "nue": _NUE,
+    "abl_none": _NUE.replace(name="abl_none", use_uncertainty=False, use_aux=False, use_cbam=False),
+    "abl_fu": _NUE.replace(name="abl_fu", use_uncertainty=True, use_aux=False, use_cbam=False),
+    "abl_at_cbam": _NUE.replace(name="abl_at_cbam", use_uncertainty=False, use_aux=True, use_cbam=True),
+    "abl_fu_cbam": _NUE.replace(name="abl_fu_cbam", use_uncertainty=True, use_aux=False, use_cbam=True),
+    "abl_fu_at": _NUE.replace(name="abl_fu_at", use_uncertainty=True, use_aux=True, use_cbam=False),
+    "fr": _NUE.replace(name="fr", kind="fr", use_uncertainty=False, use_aux=False, use_cbam=False),
+    "nav_a3c": _NUE.replace(name="nav_a3c", kind="nav_a3c", use_uncertainty=False, use_aux=False, use_cbam=False),
+}
+"""Named model configs. The five ``abl_*`` rows and ``nue`` are paper Table I's ablation block."""
+
+ABLATION_PRESETS: tuple[str, ...] = ("abl_none", "abl_fu", "abl_at_cbam", "abl_fu_cbam", "abl_fu_at")
+"""The paper's five ablation rows, in Table I order."""
+
+
+def get_model_config(name: str | ModelConfig) -> ModelConfig:
+    """Look up a model preset by name (a ModelConfig passes through)."""
+    if isinstance(name, ModelConfig):
+        return name
+    try:
+        return MODEL_PRESETS[name]
+    except KeyError:
+        raise ConfigError(None, f"unknown model preset {name!r}; known: {', '.join(MODEL_PRESETS)}") from None

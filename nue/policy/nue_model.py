@@ -1,0 +1,90 @@
+"""The NUE policy (paper Fig. 3): exploration branch f_u, exploitation branch f_cog (+ auxiliary angle head),
+perception f_p, and attention-weighted fusion into action logits (eqs. 8-10, 13-14).
+
+::
+
+    f_u   = MLP(flatten(CBAM(pool(res(res(log1p(I_u / s)))))))          (B, 64)   eq. 10
+    f_cog = MLP(flatten(CBAM(pool(res(res([I_cog, goal]))))))            (B, 64)
+    f_p   = MLP(flatten(pool(res(res(res(rgbd))))))                      (B, 256)
+    f_cat1 = [f_cog, f_u, f_p];  w = sigmoid(MLP(f_cat1))
+    f_cat2 = MLP(w * f_cat1);    logits = MLP(f_cat2)                    eqs. 13-14
+    aux_angle = wrap(MLP_2layer(f_cog))
+
+Switches: ``use_uncertainty=False`` drops f_u (f_cat1 = [f_cog, f_p]), ``use_aux=False`` drops the
+angle head, ``use_cbam=False`` drops both CBAMs; a dropped part is ``None`` and has no parameters.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from nue.policy.base import PolicyModel, PolicyOutput, State, wrap_angle_t
+from nue.policy.blocks import ConvBranch, mlp
+from nue.policy.config import ModelConfig
+from nue.policy.inputs import PolicyInput
+
+
+class FusionHead(nn.Module):
+    """Adaptive fusion (eqs. 13-14): ``w = sigmoid(MLP(x))``, ``f_cat2 = MLP(w * x)``, ``logits = MLP(f_cat2)``.
+
+    ``(B, in_dim) -> (B, num_actions)``; ``weights(f_cat1)`` gives w for inspection.
+    """
+
+    def __init__(self, in_dim: int, config: ModelConfig):
+        super().__init__()
+        s = config.negative_slope
+        self.gate = mlp([in_dim, config.gate_hidden, in_dim], s, final_activation=False)
+        self.fuse = mlp([in_dim, config.fusion_dim], s)
+        self.policy = mlp([config.fusion_dim, config.head_hidden, config.num_actions], s, final_activation=False)
+
+    def weights(self, f_cat1: Tensor) -> Tensor:
+        """The attention weights w (B, in_dim) in (0, 1)."""
+        return torch.sigmoid(self.gate(f_cat1))
+
+    def forward(self, f_cat1: Tensor) -> Tensor:
+        return self.policy(self.fuse(self.weights(f_cat1) * f_cat1))
+
+
+class NUEPolicy(PolicyModel):
+    """NUE and its ablations. Submodules: ``f_u`` (or None), ``f_cog``, ``f_p``, ``aux_head`` (or None), ``fusion``.
+
+    Grad-CAM on the uncertainty branch (Fig. 8): hook ``f_u.encoder`` (last residual block) or
+    ``f_u.cbam``; its input is ``inp.i_u``.
+    """
+
+    def __init__(self, config: ModelConfig):
+        if config.kind != "nue":
+            raise ValueError(f"NUEPolicy needs kind 'nue', got {config.kind!r}")
+        super().__init__(config)
+        c, s = config, config.negative_slope
+        cbam = dict(cbam=c.use_cbam, cbam_reduction=c.cbam_reduction, cbam_kernel=c.cbam_kernel, negative_slope=s)
+        self.f_u = ConvBranch(1, c.uncertainty_channels, c.map_grid, c.branch_dim, **cbam) if c.use_uncertainty else None
+        self.f_cog = ConvBranch(c.cog_channels + 3, c.cognition_channels, c.map_grid, c.branch_dim, **cbam)
+        self.f_p = ConvBranch(4, c.perception_channels, c.perception_grid, c.perception_dim, negative_slope=s)
+        self.aux_head = mlp([c.branch_dim, c.aux_hidden, 1], s, final_activation=False) if c.use_aux else None
+        fused = c.branch_dim * (2 if c.use_uncertainty else 1) + c.perception_dim
+        self.fusion = FusionHead(fused, config)
+
+    def features(self, inp: PolicyInput) -> tuple[Tensor, Tensor | None, Tensor]:
+        """The branch vectors ``(f_cog (B, 64), f_u (B, 64) | None, f_p (B, 256))``."""
+        self._check_input(inp)
+        i_cog = inp.i_cog
+        assert i_cog is not None
+        goal = inp.goal
+        if goal.shape[-2:] != i_cog.shape[-2:]:
+            goal = F.interpolate(goal, size=tuple(i_cog.shape[-2:]), mode="area")
+        f_cog = self.f_cog(torch.cat([i_cog, goal], dim=1))
+        f_u = None
+        if self.f_u is not None:
+            assert inp.i_u is not None
+            f_u = self.f_u(torch.log1p(inp.i_u.clamp_min(0.0) / self.config.uncertainty_scale))
+        return f_cog, f_u, self.f_p(inp.rgbd)
+
+    def forward(self, inp: PolicyInput, state: State = None, reset_mask: Tensor | None = None) -> PolicyOutput:
+        f_cog, f_u, f_p = self.features(inp)
+        f_cat1 = torch.cat([f_cog, f_p] if f_u is None else [f_cog, f_u, f_p], dim=1)
+        logits = self.fusion(f_cat1)
+        aux = None if self.aux_head is None else wrap_angle_t(self.aux_head(f_cog)[:, 0])
+        return PolicyOutput(logits, aux, None)
