@@ -123,12 +123,15 @@ def save_episodes(path, episodes: Sequence[Episode], task: TaskConfig | str = "p
     return path
 
 
-def load_episodes(path, scene=None, task: TaskConfig | str = "paper", scene_name: str | None = None) -> list[Episode]:
+def load_episodes(
+    path, scene=None, task: TaskConfig | str = "paper", scene_name: str | None = None, navgrid=None
+) -> list[Episode]:
     """Read an episode file in either format (detected from its content).
 
     With ``scene`` (a :class:`~nue.scene.scene.Scene`), episodes recording a different content hash
     are refused, and the authors' episodes (which carry no labels) get their scene name, difficulty
-    and path type from ``task``'s bins.
+    and path type from ``task``'s bins. With ``navgrid``, every episode is validated (start in free
+    space, goal reachable) and a bad one is reported with this file's name.
     """
     path = Path(path)
     if not path.is_file():
@@ -158,6 +161,9 @@ def load_episodes(path, scene=None, task: TaskConfig | str = "paper", scene_name
                     f"episode {e.episode_id} was made for scene content {e.scene_hash}, "
                     f"but {scene.path} has content {scene.content_hash} (the scene changed)",
                 )
+    if navgrid is not None:
+        for e in episodes:
+            validate_episode(e, navgrid, where=path)
     return episodes
 
 

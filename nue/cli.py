@@ -1,0 +1,123 @@
+"""The ``nue`` command line: scenes, episodes, the expert and the demo.
+
+Bad input (a malformed scene folder, episode file, ...) prints ``error: <file>: <problem>`` and exits
+with status 2, without a traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from nue.errors import NueError
+
+app = typer.Typer(add_completion=False, pretty_exceptions_enable=False, no_args_is_help=True,
+                  help="Image-goal navigation with an uncertainty-aware NeRF memory.")
+scenes_app = typer.Typer(no_args_is_help=True, help="Generate and inspect Gibson-layout scenes.")
+episodes_app = typer.Typer(no_args_is_help=True, help="Generate and convert navigation episodes.")
+app.add_typer(scenes_app, name="scenes")
+app.add_typer(episodes_app, name="episodes")
+
+
+@scenes_app.command("generate")
+def scenes_generate(
+    split: str = typer.Option(..., help="train (21 houses) or val (14 houses)."),
+    out: Path = typer.Option(..., help="Folder to write <split>_<NN>/ scene folders into."),
+):
+    """Write the fixed-seed houses of a split in the Gibson layout (existing complete houses are kept)."""
+    from nue.scene.generator import generate_split
+
+    paths = generate_split(split, out)
+    typer.echo(f"{len(paths)} scenes in {out}")
+
+
+@scenes_app.command("info")
+def scenes_info(folders: list[Path] = typer.Argument(..., help="Scene folders.")):
+    """Load scene folders and print their floors, free area and content hash."""
+    from nue.scene.scene import Scene
+
+    for folder in folders:
+        s = Scene.load(folder)
+        area = [float(m.sum()) * s.resolution**2 for m in s.trav_maps]
+        s.load_mesh()
+        typer.echo(f"{s.name}: hash {s.content_hash}, floors {list(s.floor_heights)}, "
+                   f"free area {', '.join(f'{a:.1f}' for a in area)} m^2")
+
+
+@episodes_app.command("generate")
+def episodes_generate(
+    scene: Path = typer.Option(..., help="Scene folder (Gibson layout)."),
+    out: Path = typer.Option(..., help="Episode file to write."),
+    per_bin: int = typer.Option(10, help="Episodes per difficulty bin."),
+    seed: int = typer.Option(0, help="Random seed."),
+    task: str = typer.Option("paper", help="Task preset: paper, official or habitat."),
+    fmt: str = typer.Option("nue", "--format", help="nue (ours) or authors."),
+):
+    """Sample episodes into the task's difficulty bins."""
+    from nue.scene.scene import Scene
+    from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
+    from nue.sim.episodes import save_episodes
+
+    s = Scene.load(scene)
+    eps = generate_episodes(s, task, EpisodeGenConfig(per_bin=per_bin), seed=seed)
+    save_episodes(out, eps, task, fmt=fmt)
+    typer.echo(f"{len(eps)} episodes -> {out}")
+
+
+@app.command("expert")
+def expert(
+    scene: Path = typer.Option(..., help="Scene folder."),
+    episodes: Path = typer.Option(..., help="Episode file (ours or the authors' format)."),
+    task: str = typer.Option("paper", help="Task preset."),
+    records: Optional[Path] = typer.Option(None, help="Write one JSON record per episode here."),
+):
+    """Run the geodesic expert on an episode file and print SR / SPL / DTS."""
+    import json
+
+    from nue.evaluate.metrics import aggregate, format_table
+    from nue.rollout import ExpertAgent, run_episode
+    from nue.scene.navgrid import NavGrid
+    from nue.scene.scene import Scene
+    from nue.sim.env import ImageNavEnv
+    from nue.sim.episodes import load_episodes
+
+    s = Scene.load(scene)
+    nav = NavGrid.from_scene(s)
+    eps = load_episodes(episodes, s, task, navgrid=nav)
+    env = ImageNavEnv(s, task, eps, navgrid=nav)
+    agent = ExpertAgent()
+    recs = [run_episode(env, agent, episode_index=i, method="expert") for i in range(len(eps))]
+    if records:
+        records.parent.mkdir(parents=True, exist_ok=True)
+        records.write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs))
+    typer.echo(format_table(aggregate(recs)))
+
+
+@app.command("demo")
+def demo(
+    out: Path = typer.Option(Path("outputs/demo"), help="Output folder for figures and tables."),
+    house: int = typer.Option(0, help="Validation house index (0-13)."),
+    task: str = typer.Option("paper", help="Task preset."),
+    seed: int = typer.Option(0, help="Episode seed."),
+):
+    """Run the agent on one episode per difficulty in a validation house; write figures and a table."""
+    from nue.demo import run_demo
+
+    table = run_demo(out, house=house, task_name=task, seed=seed)
+    typer.echo(table)
+    typer.echo(f"figures and records in {out}/")
+
+
+def main() -> None:
+    try:
+        app()
+    except NueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()
