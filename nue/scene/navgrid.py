@@ -30,6 +30,10 @@ class NavGridConfig:
     """Planning-grid cell size, metres (a multiple of the map's 0.01 m)."""
     cache_size: int = 64
     """Number of geodesic distance fields (one per goal cell) kept in memory."""
+    comfort_clearance: float = 0.3
+    """Paths for driving (``comfort=True``) pay extra within this clearance from free-space edges, metres."""
+    comfort_weight: float = 3.0
+    """Extra cost per metre at zero clearance (linear down to 0 at ``comfort_clearance``)."""
 
 
 class NavGrid:
@@ -52,7 +56,10 @@ class NavGrid:
         self.free = padded.reshape(m, self.factor, m, self.factor).all(axis=(1, 3))
         """(M, M) bool planning grid: cell (r, c) covers fine pixels [r*f, (r+1)*f) x [c*f, (c+1)*f)."""
         self._costs = np.where(self.free, 1.0, np.inf)
-        self._fields: OrderedDict[tuple[int, int], np.ndarray] = OrderedDict()
+        edge = ndimage.distance_transform_edt(self.free) * self.cell
+        penalty = config.comfort_weight * np.clip(1.0 - edge / config.comfort_clearance, 0.0, 1.0)
+        self._comfort_costs = np.where(self.free, 1.0 + penalty, np.inf)
+        self._fields: OrderedDict[tuple, np.ndarray] = OrderedDict()
         labels, count = ndimage.label(self.free, structure=np.ones((3, 3)))
         self.component = labels
         """(M, M) int: connected component of each free cell (0 = blocked)."""
@@ -89,18 +96,22 @@ class NavGrid:
         return bool(np.all(self.is_free(pts)))
 
     # -- geodesics -----------------------------------------------------------------------------
-    def distance_field(self, goal_xy) -> np.ndarray:
+    def distance_field(self, goal_xy, comfort: bool = False) -> np.ndarray:
         """(M, M) geodesic distance in metres from every planning cell to the goal's cell; inf = unreachable.
 
-        Cached per goal cell (LRU). If the goal's own cell is blocked, the field is all inf.
+        ``comfort=True`` gives the cost-to-go of a driving field instead, where cells near free-space
+        edges cost more (so paths keep to the middle of corridors); use it for steering, never as a
+        distance. Cached per goal cell (LRU). If the goal's own cell is blocked, the field is all inf.
         """
-        key = tuple(int(v) for v in self.cell_of(goal_xy))
+        cell = tuple(int(v) for v in self.cell_of(goal_xy))
+        key = (*cell, comfort)
         if key in self._fields:
             self._fields.move_to_end(key)
             return self._fields[key]
         field = np.full(self.free.shape, np.inf)
-        if self._in_grid(key) and self.free[key]:
-            costs, _ = MCP_Geometric(self._costs, fully_connected=True).find_costs([key])
+        if self._in_grid(cell) and self.free[cell]:
+            costs_map = self._comfort_costs if comfort else self._costs
+            costs, _ = MCP_Geometric(costs_map, fully_connected=True).find_costs([cell])
             field = np.where(np.isfinite(costs), costs * self.cell, np.inf)
         self._fields[key] = field
         if len(self._fields) > self.config.cache_size:
@@ -127,11 +138,12 @@ class NavGrid:
         """Geodesic distance between two world points (metres); inf if unreachable."""
         return self.lookup(self.distance_field(b_xy), a_xy)
 
-    def shortest_path(self, start_xy, goal_xy, max_len: int | None = None) -> np.ndarray:
+    def shortest_path(self, start_xy, goal_xy, max_len: int | None = None, comfort: bool = False) -> np.ndarray:
         """Waypoints (K, 2) in world coordinates from start towards goal along the distance field
         (steepest descent over 8 neighbours), starting at the start point and ending at the goal.
-        ``max_len`` limits the number of cells followed. Empty (0, 2) if unreachable."""
-        field = self.distance_field(goal_xy)
+        ``max_len`` limits the number of cells followed; ``comfort`` follows the driving field.
+        Empty (0, 2) if unreachable."""
+        field = self.distance_field(goal_xy, comfort)
         start_xy = np.asarray(start_xy, dtype=np.float64)
         rc = self._best_cell_near(field, start_xy)
         if rc is None:

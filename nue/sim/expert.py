@@ -1,9 +1,9 @@
 """The geodesic expert: a deterministic shortest-path follower on the navigation grid.
 
 Each step it takes the shortest path from its position to the goal (steepest descent on the cached
-geodesic field), aims at the farthest path point within ``lookahead`` metres that it can reach in a
-straight line, and turns toward it when the heading error exceeds half a turn step, else moves
-forward. It never turns back the way it just turned for a small error (no left-right thrashing),
+driving field, a geodesic field that charges extra near walls), aims at the farthest path point
+within ``lookahead`` metres that it can reach in a straight line, and turns toward it when the
+heading error exceeds half a turn step, else moves forward. It never turns back the way it just turned for a small error (no left-right thrashing),
 and after a blocked forward move it turns toward the path before trying again. With a STOP action
 in the task (``habitat``) it stops once safely inside the success radius.
 """
@@ -28,6 +28,8 @@ class ExpertConfig:
     """How far along the path (metres) the expert looks for its aim point."""
     stop_margin: float = 0.25
     """With a STOP action: stop when the geodesic distance is below success radius minus this (metres)."""
+    keep_clear: bool = True
+    """Follow the navigation grid's comfort field (keeps to the middle of corridors, fewer collisions)."""
 
 
 class GeodesicExpert:
@@ -82,7 +84,7 @@ class GeodesicExpert:
     def aim_point(self, xy) -> np.ndarray:
         """The farthest point within ``lookahead`` along the shortest path that is in straight reach."""
         n_cells = int(math.ceil(self.config.lookahead / self.nav.cell)) + 2
-        path = self.nav.shortest_path(xy, self.goal, max_len=n_cells)
+        path = self.nav.shortest_path(xy, self.goal, max_len=n_cells, comfort=self.config.keep_clear)
         if len(path) < 2:
             return self.goal.copy()
         seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
