@@ -372,6 +372,10 @@ def test_prepare_input_normalises_and_resizes():
     same = prepare_input(torch.from_numpy(rgb), torch.from_numpy(depth[..., None]), torch.from_numpy(goal),
                          torch.from_numpy(i_u[None]), torch.from_numpy(i_cog), cfg)
     assert all(torch.equal(getattr(inp, k), getattr(same, k)) for k in ("rgbd", "goal", "i_u", "i_cog"))
+    as_float = prepare_input(rgb / np.float32(255), depth, goal.astype(np.float32), i_u, i_cog, cfg)
+    assert torch.allclose(as_float.rgbd, inp.rgbd) and torch.allclose(as_float.goal, inp.goal)
+    with pytest.raises(ValueError, match="rgb"):
+        prepare_input(rgb.astype(np.float32), depth, goal, i_u, i_cog, cfg)  # float 0..255: ambiguous
 
     batched = prepare_input(np.stack([rgb] * 3), np.stack([depth] * 3), np.stack([goal] * 3),
                             np.stack([i_u] * 3), np.stack([i_cog] * 3), cfg)

@@ -104,13 +104,18 @@ def _resize(x: Tensor, size: tuple[int, int]) -> Tensor:
 
 
 def _image(x, batched: bool, device, name: str) -> Tensor:
-    """(H, W, 3) or (B, H, W, 3) uint8 -> (B, 3, H, W) float in [0, 1]."""
-    t = _as_float_tensor(x, device)
+    """(H, W, 3) or (B, H, W, 3), uint8 in 0..255 or float in [0, 1] -> (B, 3, H, W) float in [0, 1]."""
+    raw = x if isinstance(x, Tensor) else torch.as_tensor(np.asarray(x))
+    t = raw.to(device=device, dtype=torch.float32)
+    if raw.dtype == torch.uint8:
+        t = t / 255.0
+    elif raw.numel() and (t.min() < 0.0 or t.max() > 1.0):
+        raise ValueError(f"{name}: float images must lie in [0, 1] (or pass uint8 0..255)")
     if not batched:
         t = t[None]
     if t.ndim != 4 or t.shape[-1] != 3:
         raise ValueError(f"{name}: expected (H, W, 3) or (B, H, W, 3), got {tuple(t.shape)}")
-    return t.permute(0, 3, 1, 2) / 255.0
+    return t.permute(0, 3, 1, 2)
 
 
 def _map(x, batched: bool, channels: int, device, name: str) -> Tensor:
@@ -137,15 +142,15 @@ def prepare_input(
 ) -> PolicyInput:
     """Raw observation + goal + NeRF maps -> a normalised, resized :class:`PolicyInput`.
 
-    Unbatched: ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) or (H, W, 1) metres (z-depth), ``goal``
-    (H', W', 3) uint8, ``i_u`` (h, w) or (1, h, w), ``i_cog`` (64, h, w); gives batch size 1.
+    Unbatched: ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) or (H, W, 1) metres (z-depth; NaN and the
+    renderer's 0 for "no surface" both map to 0), ``goal`` (H', W', 3) uint8, ``i_u`` (h, w) or
+    (1, h, w), ``i_cog`` (64, h, w); gives batch size 1. Images may also be float in [0, 1].
     Batched: the same with a leading B (``rgb`` (B, H, W, 3) marks the call as batched).
     numpy arrays or torch tensors. Maps the config does not use may be None (and are dropped
     if given); maps it uses are required.
     """
-    rgb_t = _as_float_tensor(rgb, device)
-    batched = rgb_t.ndim == 4
-    rgb_t = _image(rgb_t, batched, device, "rgb")
+    batched = np.ndim(rgb) == 4 if not isinstance(rgb, Tensor) else rgb.ndim == 4
+    rgb_t = _image(rgb, batched, device, "rgb")
     b, _, h, w = rgb_t.shape
 
     d = _as_float_tensor(depth, device)
