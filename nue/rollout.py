@@ -28,11 +28,11 @@ class Agent(Protocol):
 class Memory(Protocol):
     """The robot's memory (the online NeRF): rendered before it learns from the current frame."""
 
-    def reset(self, seed: int) -> None: ...
+    def reset(self, seed: int, start_pose: np.ndarray, floor_z: float) -> None: ...
 
-    def render_maps(self, pose: np.ndarray, depth: np.ndarray) -> Any: ...
+    def render_maps(self, pose: np.ndarray, depth: np.ndarray, floor_z: float) -> Any: ...
 
-    def step(self, rgb: np.ndarray, depth: np.ndarray, pose: np.ndarray) -> None: ...
+    def step(self, rgb: np.ndarray, depth: np.ndarray, pose: np.ndarray, floor_z: float) -> Any: ...
 
 
 @dataclass
@@ -85,16 +85,16 @@ def run_episode(
         options["episode_index"] = episode_index
     obs, info = env.reset(seed=seed, options=options)
     if memory is not None:
-        memory.reset(seed)
+        memory.reset(seed, start_pose=obs["pose"], floor_z=env.floor_z)
     agent.reset(env, obs)
     t = 0
     while True:
-        maps = memory.render_maps(obs["pose"], obs["depth"]) if memory is not None else None
+        maps = memory.render_maps(obs["pose"], obs["depth"], floor_z=env.floor_z) if memory is not None else None
         action = int(agent.act(obs, maps))
         if on_step is not None:
             on_step(StepData(t, obs, maps, action, info, env))
         if memory is not None:
-            memory.step(obs["rgb"], obs["depth"], obs["pose"])
+            memory.step(obs["rgb"], obs["depth"], obs["pose"], floor_z=env.floor_z)
         obs, _, terminated, truncated, info = env.step(action)
         t += 1
         if terminated or truncated:
