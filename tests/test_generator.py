@@ -195,6 +195,7 @@ def test_generate_split(tmp_path, monkeypatch):
     with pytest.raises(ConfigError):
         generate_split("test", tmp_path)
     monkeypatch.setitem(generator.SPLITS, "tiny", (SEEDS[0],))
+    (tmp_path / ".tiny_00.tmp-999999999").mkdir()  # left by a killed run (no such process)
     (paths,) = generate_split("tiny", tmp_path, progress=False)
     assert paths == tmp_path / "tiny_00" and _meta(paths)["seed"] == SEEDS[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tiny_00"]  # no temporary folder left

@@ -32,7 +32,7 @@ from nue.scene.house_layout import Plan, PlanFailure, PlanParams, make_plan
 from nue.scene.house_mesh import Material, build_mesh, write_obj
 from nue.scene.house_trav import check_house, map_size, trav_map
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 """Bumped whenever the same seed and config would give a different house."""
 
 SPLITS: dict[str, tuple[int, ...]] = {
@@ -80,7 +80,7 @@ class HouseConfig:
     furniture_density: float = 1.0
     """Multiplier on each piece's placement probability (0 = empty rooms; probabilities cap at 1)."""
     pictures_per_room: tuple[int, int] = (1, 2)
-    """Range of pictures per room (hallways: one per 3.5 m)."""
+    """Range of pictures per room (one more in rooms over 20 m^2; hallways: one per 3.5 m)."""
     picture_heights: tuple[float, float] = (1.1, 1.9)
     """Lowest bottom and highest top edge of a picture above the floor."""
     robot_radius: float = 0.18
@@ -255,6 +255,17 @@ def _check_existing(folder: Path, seed: int, config: HouseConfig) -> None:
             raise SceneError(folder, f"holds a different house ({key} differs); delete it or use another --out")
 
 
+def _remove_stale_temps(root: Path, name: str) -> None:
+    """Delete temporary folders ``.<name>.tmp-<pid>`` left by runs whose process has ended."""
+    for tmp in sorted(root.glob(f".{name}.tmp-*")):
+        try:
+            os.kill(int(tmp.name.rsplit("-", 1)[1]), 0)
+        except ProcessLookupError:
+            shutil.rmtree(tmp, ignore_errors=True)
+        except (ValueError, PermissionError):
+            pass
+
+
 def generate_split(split: str, out_root: str | Path, config: HouseConfig = HouseConfig(),
                    progress: bool = True) -> list[Path]:
     """Write ``out_root/<split>_<NN>/`` for every seed of ``split``; complete houses are kept.
@@ -274,6 +285,7 @@ def generate_split(split: str, out_root: str | Path, config: HouseConfig = House
             _check_existing(folder, seed, config)
             status = "kept"
         else:
+            _remove_stale_temps(root, folder.name)
             tmp = root / f".{folder.name}.tmp-{os.getpid()}"
             shutil.rmtree(tmp, ignore_errors=True)
             generate_house(seed, tmp, config)

@@ -133,6 +133,17 @@ ROOM_FURNITURE = {
     "hallway": [("console", 0.6), ("plant", 0.4), ("console", 0.3)],
 }
 
+# room kind: extra pieces, one draw tried per 12 m^2 of floor (probability 0.6 x density)
+ROOM_EXTRAS = {
+    "living room": ("armchair", "plant", "cabinet", "bookshelf", "chair", "sideboard"),
+    "kitchen": ("chair", "cabinet", "plant"),
+    "bedroom": ("plant", "chair", "cabinet", "bookshelf"),
+    "office": ("chair", "plant", "cabinet", "bookshelf"),
+    "dining room": ("chair", "plant", "cabinet"),
+    "bathroom": ("cabinet",),
+    "hallway": ("plant", "console"),
+}
+
 _SIDES = ((0, 1), (0, -1), (1, 1), (1, -1))  # (axis, sign): wall at the room's min (+1) / max (-1) side
 
 
@@ -236,7 +247,10 @@ def furnish(rng, plan: Plan, density: float, clearance: int, passage: int, robot
         zd = door_zones(plan, ri, clearance)
         zones, points = [z for z, _ in zd], [p for _, p in zd]
         mine: list[Item] = []
-        for kind, prob in ROOM_FURNITURE.get(room.kind, []):
+        extras = ROOM_EXTRAS.get(room.kind, ())
+        wishes = list(ROOM_FURNITURE.get(room.kind, []))
+        wishes += [(extras[int(rng.integers(0, len(extras)))], 0.6) for _ in range(int(room.area_m2 // 12))]
+        for kind, prob in wishes:
             if rng.random() >= min(1.0, prob * density):
                 continue
             for _ in range(tries):
@@ -275,7 +289,7 @@ def hang_pictures(rng, plan: Plan, items: list[Item], per_room: tuple[int, int],
             length = max(interior[2] - interior[0], interior[3] - interior[1])
             count = max(1, int(round(length / 350)))
         else:
-            count = int(rng.integers(per_room[0], per_room[1] + 1))
+            count = int(rng.integers(per_room[0], per_room[1] + 1)) + int(room.area_m2 > 20)
         mine: list[Picture] = []
         for _ in range(count * 15):
             if len(mine) >= count:
@@ -290,13 +304,13 @@ def hang_pictures(rng, plan: Plan, items: list[Item], per_room: tuple[int, int],
                       (it.rect[axis] <= plane + 5 if sign > 0 else it.rect[axis + 2] >= plane - 5)]
             taken += [(p.span[0] - 40, p.span[1] + 40) for p in mine if p.axis == axis and p.plane == plane]
             free = _free_intervals(interior[o] + 25, interior[o + 2] - 25, taken)
-            width = int(rng.integers(40, 101))
+            width = int(rng.integers(50, 111))
             free = [(a, b) for a, b in free if b - a >= width]
             if not free:
                 continue
             a, b = free[int(rng.integers(0, len(free)))]
             s0 = int(rng.integers(a, b - width + 1))
-            height = int(rng.integers(40, min(76, z_range[1] - z_range[0] + 1)))
+            height = int(rng.integers(45, min(76, z_range[1] - z_range[0] + 1)))
             z0 = int(rng.integers(z_range[0], z_range[1] - height + 1))
             name = f"picture{first_index + len(pictures) + len(mine):02d}"
             mine.append(Picture(ri, axis, sign, plane, (s0, s0 + width), (z0, z0 + height), name))

@@ -149,6 +149,9 @@ def write_obj(mb: MeshBuilder, folder: Path, header: str, mesh_name: str = "mesh
     lines += [f"vt {u} {v}" for u, v in uvs]
     (folder / f"{mesh_name}.obj").write_text("\n".join(lines + body) + "\n")
     (folder / tex_dir).mkdir(exist_ok=True)
+    for stale in sorted((folder / tex_dir).glob("*.png")):  # left over from an earlier house here
+        if stale.stem not in mb.quads:
+            stale.unlink()
     mtl = [f"# {header}"]
     for mat in names:
         Image.fromarray(mb.materials[mat].image, "RGB").save(folder / tex_dir / f"{mat}.png", format="PNG")
