@@ -107,7 +107,8 @@ class HouseConfig:
         if self.door_width[0] < 0.6 or self.door_height >= self.wall_height:
             raise ConfigError("HouseConfig", "doors must be >= 0.6 m wide and lower than the walls")
         if self.corridor_width[0] - self.wall_thickness < self.door_width[0] + 0.3:
-            raise ConfigError("HouseConfig", "corridor too narrow for its end door")
+            raise ConfigError("HouseConfig", "corridor_width minus the wall must leave door_width + 0.3 m "
+                              "(for a door at the hallway's end)")
         if self.picture_heights[1] - self.picture_heights[0] < 0.4 or self.picture_heights[1] > self.wall_height:
             raise ConfigError("HouseConfig", "picture_heights must span >= 0.4 m below the ceiling")
         if self.texture_size < 16 or self.texture_size & (self.texture_size - 1):
@@ -142,12 +143,13 @@ def _materials(rng, plan: Plan, cfg: HouseConfig) -> tuple[dict[str, Material], 
     mats: dict[str, Material] = {}
     styles = []
     hue0 = rng.random()
+    hue_order = rng.permutation(len(plan.rooms))  # evenly spread hues, neighbours not adjacent in hue
     walls = [tx.WALL_PATTERNS[i] for i in rng.permutation(len(tx.WALL_PATTERNS))]
     floors = [tx.FLOOR_PATTERNS[i] for i in rng.permutation(len(tx.FLOOR_PATTERNS))]
     for i, room in enumerate(plan.rooms):
-        hue = hue0 + 0.618034 * i
+        hue = hue0 + hue_order[i] / len(plan.rooms)
         wall = walls[i % len(walls)]
-        floor = floors[i % len(floors)]
+        floor = floors[(i + i // len(walls)) % len(floors)]  # no two rooms share both patterns
         if room.kind in ("bathroom", "kitchen") and floor in ("planks", "carpet", "parquet"):
             floor = "tiles" if rng.random() < 0.5 else "checker"
         if floor in ("planks", "parquet"):
@@ -163,8 +165,8 @@ def _materials(rng, plan: Plan, cfg: HouseConfig) -> tuple[dict[str, Material], 
     wood_d = tx.hsv(rng.uniform(0.03, 0.08), rng.uniform(0.4, 0.7), rng.uniform(0.25, 0.45))
     mats["ceiling"] = Material(tx.plain(rng, tx.hsv(0.1, 0.03, 0.93), small, 0.02), (2.0, 2.0))
     mats["trim"] = Material(tx.plain(rng, tx.hsv(0.1, 0.05, 0.88), small, 0.01), (1.0, 1.0))
-    mats["wood_light"] = Material(tx._rgb(tx.wood(rng, wood_l, n, n // 8, n)), (1.0, 1.0))
-    mats["wood_dark"] = Material(tx._rgb(tx.wood(rng, wood_d, n, n // 8, n)), (1.0, 1.0))
+    mats["wood_light"] = Material(tx.to_uint8(tx.wood(rng, wood_l, n, n // 8, n)), (1.0, 1.0))
+    mats["wood_dark"] = Material(tx.to_uint8(tx.wood(rng, wood_d, n, n // 8, n)), (1.0, 1.0))
     for name in ("fabric_a", "fabric_b", "bedding"):
         col = tx.hsv(rng.random(), rng.uniform(0.3, 0.7), rng.uniform(0.35, 0.8))
         mats[name] = Material(tx.fabric(rng, col, small), (0.5, 0.5))
@@ -179,7 +181,10 @@ def _materials(rng, plan: Plan, cfg: HouseConfig) -> tuple[dict[str, Material], 
 
 
 def _attempt(seed: int, attempt: int, cfg: HouseConfig):
-    """One deterministic draw: (plan, items, pictures, materials, trav) or None if it fails a check."""
+    """One deterministic draw, or None if it fails a check.
+
+    Returns (plan, items, pictures, materials, trav (N, N) uint8, per-room pattern names).
+    """
     rng = np.random.default_rng([seed, attempt])
     try:
         plan = make_plan(rng, _plan_params(rng, cfg))

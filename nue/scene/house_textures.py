@@ -29,7 +29,8 @@ def noise(rng, shape: tuple[int, int], sigma) -> np.ndarray:
     return (n - n.mean()) / (n.std() + 1e-9)
 
 
-def _rgb(img: np.ndarray) -> np.ndarray:
+def to_uint8(img: np.ndarray) -> np.ndarray:
+    """Float RGB in [0, 1] (H, W, 3) -> uint8 (H, W, 3)."""
     return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
@@ -80,7 +81,7 @@ def floor_texture(rng, pattern: str, color: np.ndarray, n: int = 128) -> np.ndar
         img = _shade(color, 0.12 * fine + 0.1 * noise(rng, (n, n), 10.0))
     else:
         raise ValueError(pattern)
-    return _rgb(img)
+    return to_uint8(img)
 
 
 def wall_texture(rng, pattern: str, color: np.ndarray, wall_height: float, n: int = 128) -> np.ndarray:
@@ -112,26 +113,26 @@ def wall_texture(rng, pattern: str, color: np.ndarray, wall_height: float, n: in
     elif pattern != "plaster":
         raise ValueError(pattern)
     img[z < 0.08] = 0.9  # skirting board
-    return _rgb(img)
+    return to_uint8(img)
 
 
 def plain(rng, color: np.ndarray, n: int = 64, amount: float = 0.03, sigma: float = 0.8) -> np.ndarray:
     """Nearly uniform texture with a little noise, uint8 (n, n, 3)."""
-    return _rgb(_shade(color, amount * noise(rng, (n, n), sigma)))
+    return to_uint8(_shade(color, amount * noise(rng, (n, n), sigma)))
 
 
 def fabric(rng, color: np.ndarray, n: int = 64) -> np.ndarray:
     """Woven fabric, uint8 (n, n, 3)."""
     yy, xx = np.mgrid[0:n, 0:n]
     weave = ((xx // 2 + yy // 2) % 2) * 0.06 - 0.03
-    return _rgb(_shade(color, weave + 0.05 * noise(rng, (n, n), 0.6)))
+    return to_uint8(_shade(color, weave + 0.05 * noise(rng, (n, n), 0.6)))
 
 
 def foliage(rng, n: int = 64) -> np.ndarray:
     """Leafy green blotches, uint8 (n, n, 3)."""
     leaves = noise(rng, (n, n), 2.0)
     img = np.where((leaves > 0)[..., None], hsv(0.3, 0.7, 0.55), hsv(0.27, 0.8, 0.3))
-    return _rgb(img * (1.0 + 0.1 * noise(rng, (n, n), 0.7))[..., None])
+    return to_uint8(img * (1.0 + 0.1 * noise(rng, (n, n), 0.7))[..., None])
 
 
 def books(rng, n: int = 128) -> np.ndarray:
@@ -150,7 +151,7 @@ def books(rng, n: int = 128) -> np.ndarray:
             x += w + int(rng.integers(0, 2))
         img[top + pitch - 5: top + pitch, :] = hsv(0.08, 0.45, 0.5)
     img[:, :4] = img[:, -4:] = hsv(0.08, 0.45, 0.5)
-    return _rgb(img)
+    return to_uint8(img)
 
 
 def panel_front(rng, color: np.ndarray, rows: int, cols: int, n: int = 128) -> np.ndarray:
@@ -162,7 +163,7 @@ def panel_front(rng, color: np.ndarray, rows: int, cols: int, n: int = 128) -> n
     hy, hx = (yy % ph) - ph * (0.5 if cols > 1 else 0.2), (xx % pw) - pw * (0.85 if cols > 1 else 0.5)
     handle = (np.abs(hy) < (ph * 0.18 if cols > 1 else 2)) & (np.abs(hx) < (2 if cols > 1 else pw * 0.15))
     img[handle] = 0.75
-    return _rgb(img)
+    return to_uint8(img)
 
 
 def _palette(rng, k: int) -> np.ndarray:
@@ -235,4 +236,4 @@ def picture(rng, style: str, n: int = 128) -> np.ndarray:
         raise ValueError(style)
     frame = max(4, n // 20)
     img[:frame], img[-frame:], img[:, :frame], img[:, -frame:] = (hsv(rng.uniform(0.05, 0.12), 0.6, rng.choice([0.15, 0.45, 0.8])),) * 4
-    return _rgb(img)
+    return to_uint8(img)
