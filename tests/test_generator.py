@@ -150,7 +150,8 @@ def test_trav_map_agrees_with_mesh(houses):
     rng = np.random.default_rng(0)
 
     def first_hit_z(pixels):
-        """z of the first surface a ray cast down from z = 2.08 (under door tops) meets at each pixel centre (NaN: none)."""
+        """z of the first surface met by a ray cast down from z = 2.08 (under door tops) at each
+        pixel centre (NaN: none)."""
         pixels = np.asarray(pixels)
         xy = (pixels[:, ::-1] + 0.5 - n / 2) * 0.01  # pixel centre (col, row) -> (x, y)
         a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
@@ -168,8 +169,9 @@ def test_trav_map_agrees_with_mesh(houses):
     inside, outside = [], []
     for item in meta["furniture"][:12]:
         rs, cs = _slice(item["rect"], n)
-        inside += [(rs.start, cs.start), (rs.stop - 1, cs.stop - 1), ((rs.start + rs.stop) // 2, (cs.start + cs.stop) // 2)]
-        for r, c in ((rs.start - 1, cs.start), (rs.stop, cs.stop - 1), (rs.start, cs.start - 1), (rs.stop - 1, cs.stop)):
+        r0, r1, c0, c1 = rs.start, rs.stop, cs.start, cs.stop
+        inside += [(r0, c0), (r1 - 1, c1 - 1), ((r0 + r1) // 2, (c0 + c1) // 2)]
+        for r, c in ((r0 - 1, c0), (r1, c1 - 1), (r0, c0 - 1), (r1 - 1, c1)):
             if trav[r, c]:
                 outside.append((r, c))
     assert np.all(first_hit_z(inside) > 0.3)  # furniture tops, all above the floor

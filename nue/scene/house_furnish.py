@@ -77,7 +77,8 @@ def _chair(w, d, h):
 
 def _tv_stand(w, d, h):
     t0 = w * 15 // 100
-    return [(0, w, 0, d, 0, h, "wood_dark", "drawers"), (t0, w - t0, 8, 14, h, h + (w - 2 * t0) * 9 // 16, "screen", None)]
+    screen_top = h + (w - 2 * t0) * 9 // 16
+    return [(0, w, 0, d, 0, h, "wood_dark", "drawers"), (t0, w - t0, 8, 14, h, screen_top, "screen", None)]
 
 
 def _toilet(w, d, h):
@@ -209,8 +210,11 @@ def _world_boxes(local: list[Box], rect: Rect, back: tuple[int, int]):
     return out
 
 
-def _try_place(rng, kind: str, interior: Rect, zones: list[Rect], items: list[Item]) -> tuple[Rect, tuple[int, int], bool, tuple[int, int, int]] | None:
-    """A random candidate footprint for ``kind`` that avoids door zones and other pieces, or None."""
+def _try_place(rng, kind: str, interior: Rect, zones: list[Rect], items: list[Item]):
+    """A random candidate for ``kind`` that avoids door zones and other pieces, or None.
+
+    Returns ``(footprint, back (axis, sign), against_wall, (w, d, h))``.
+    """
     (wlo, whi), (dlo, dhi), (hlo, hhi), where, _ = TEMPLATES[kind]
     w, d, h = (int(rng.integers(lo, hi + 1)) for lo, hi in ((wlo, whi), (dlo, dhi), (hlo, hhi)))
     wall = where == "wall" or (where == "any" and rng.random() < 0.5)
@@ -268,7 +272,8 @@ def furnish(rng, plan: Plan, density: float, clearance: int, passage: int, robot
     return items
 
 
-def _free_intervals(lo: int, hi: int, taken: list[tuple[int, int]]) -> list[tuple[int, int]]:
+def free_intervals(lo: int, hi: int, taken: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """Parts of [lo, hi) not covered by any ``taken`` interval."""
     out, cur = [], lo
     for a, b in sorted(taken):
         if a > cur:
@@ -303,7 +308,7 @@ def hang_pictures(rng, plan: Plan, items: list[Item], per_room: tuple[int, int],
                       if it.room == ri and it.height > z_range[0] - 5 and
                       (it.rect[axis] <= plane + 5 if sign > 0 else it.rect[axis + 2] >= plane - 5)]
             taken += [(p.span[0] - 40, p.span[1] + 40) for p in mine if p.axis == axis and p.plane == plane]
-            free = _free_intervals(interior[o] + 25, interior[o + 2] - 25, taken)
+            free = free_intervals(interior[o] + 25, interior[o + 2] - 25, taken)
             width = int(rng.integers(50, 111))
             free = [(a, b) for a, b in free if b - a >= width]
             if not free:

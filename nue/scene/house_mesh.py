@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from nue.scene.house_furnish import Item, Picture, _free_intervals
+from nue.scene.house_furnish import Item, Picture, free_intervals
 from nue.scene.house_layout import Plan
 
 
@@ -100,7 +100,7 @@ def build_mesh(plan: Plan, items: list[Item], pictures: list[Picture], materials
                 plane = interior[axis] if sign > 0 else interior[axis + 2]
                 spans = [d.span for d in plan.doors if ri in d.rooms and d.normal == axis and
                          (d.rect[axis + 2] == plane or d.rect[axis] == plane)]
-                pieces = [(a, b, 0) for a, b in _free_intervals(interior[o], interior[o + 2], spans)]
+                pieces = [(a, b, 0) for a, b in free_intervals(interior[o], interior[o + 2], spans)]
                 pieces += [(a, b, Dh) for a, b in spans]
                 for a, b, z0 in pieces:
                     lo, hi = [0, 0, z0], [0, 0, H]
@@ -131,7 +131,8 @@ def build_mesh(plan: Plan, items: list[Item], pictures: list[Picture], materials
     return mb
 
 
-def write_obj(mb: MeshBuilder, folder: Path, header: str, mesh_name: str = "mesh_z_up", tex_dir: str = "textures") -> list[str]:
+def write_obj(mb: MeshBuilder, folder: Path, header: str, mesh_name: str = "mesh_z_up",
+              tex_dir: str = "textures") -> list[str]:
     """Write ``<mesh_name>.obj`` / ``.mtl`` and one PNG per used material; returns the material names."""
     verts: dict[tuple[int, int, int], int] = {}
     uvs: dict[tuple[str, str], int] = {}

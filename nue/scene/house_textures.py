@@ -39,7 +39,8 @@ def _shade(color: np.ndarray, amount: np.ndarray) -> np.ndarray:
     return color[None, None, :] * (1.0 + amount[..., None])
 
 
-def wood(rng, color: np.ndarray, n: int = 128, plank: int = 32, length: int = 128, vertical: bool = False) -> np.ndarray:
+def wood(rng, color: np.ndarray, n: int = 128, plank: int = 32, length: int = 128,
+         vertical: bool = False) -> np.ndarray:
     """Planks of width ``plank`` px and length ``length`` px with grain and seams, float (n, n, 3)."""
     yy, xx = np.mgrid[0:n, 0:n]
     if vertical:
@@ -147,7 +148,8 @@ def books(rng, n: int = 128) -> np.ndarray:
         while x < n - 4:
             w = int(rng.integers(3, 8))
             book_h = int(rng.integers(pitch * 5 // 10, pitch - 8))
-            img[top + pitch - 5 - book_h: top + pitch - 5, x:min(x + w, n - 4)] = hsv(rng.random(), rng.uniform(0.3, 0.8), rng.uniform(0.3, 0.85))
+            spine = hsv(rng.random(), rng.uniform(0.3, 0.8), rng.uniform(0.3, 0.85))
+            img[top + pitch - 5 - book_h: top + pitch - 5, x:min(x + w, n - 4)] = spine
             x += w + int(rng.integers(0, 2))
         img[top + pitch - 5: top + pitch, :] = hsv(0.08, 0.45, 0.5)
     img[:, :4] = img[:, -4:] = hsv(0.08, 0.45, 0.5)
@@ -235,5 +237,6 @@ def picture(rng, style: str, n: int = 128) -> np.ndarray:
     else:
         raise ValueError(style)
     frame = max(4, n // 20)
-    img[:frame], img[-frame:], img[:, :frame], img[:, -frame:] = (hsv(rng.uniform(0.05, 0.12), 0.6, rng.choice([0.15, 0.45, 0.8])),) * 4
+    frame_colour = hsv(rng.uniform(0.05, 0.12), 0.6, rng.choice([0.15, 0.45, 0.8]))
+    img[:frame], img[-frame:], img[:, :frame], img[:, -frame:] = (frame_colour,) * 4
     return to_uint8(img)

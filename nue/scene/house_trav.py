@@ -48,7 +48,7 @@ def trav_map(plan: Plan, items: list[Item], n: int) -> np.ndarray:
 
 
 def robot_free(trav: np.ndarray, radius_m: float, resolution: float = 0.01) -> np.ndarray:
-    """Cells where a disc of ``radius_m`` fits: free pixels farther than the radius from any blocked one, (N, N) bool."""
+    """Where a disc of ``radius_m`` fits: free pixels farther than it from any blocked one, (N, N) bool."""
     return ndimage.distance_transform_edt(trav > 0) * resolution > radius_m
 
 
