@@ -32,7 +32,7 @@ from nue.scene.house_layout import Plan, PlanFailure, PlanParams, make_plan
 from nue.scene.house_mesh import Material, build_mesh, write_obj
 from nue.scene.house_trav import check_house, map_size, trav_map
 
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3
 """Bumped whenever the same seed and config would give a different house."""
 
 SPLITS: dict[str, tuple[int, ...]] = {
