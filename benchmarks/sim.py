@@ -17,10 +17,10 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import CACHE, median_ms, write_result  # noqa: E402
+from _common import CACHE, median_ms, write_result  # noqa: E402
 
-from nue.demo import ensure_house  # noqa: E402
 from nue.rollout import ExpertAgent, run_episode  # noqa: E402
+from nue.scene.generator import ensure_house  # noqa: E402
 from nue.scene.navgrid import NavGrid  # noqa: E402
 from nue.scene.scene import Scene  # noqa: E402
 from nue.sim.env import ImageNavEnv  # noqa: E402

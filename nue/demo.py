@@ -13,6 +13,7 @@ import numpy as np
 
 from nue.evaluate.metrics import aggregate, format_table
 from nue.rollout import ExpertAgent, StepData, run_episode
+from nue.scene.generator import ensure_house
 from nue.scene.navgrid import NavGrid
 from nue.scene.scene import Scene
 from nue.sim.env import ImageNavEnv
@@ -21,16 +22,6 @@ from nue.sim.episodes import save_episodes
 from nue.sim.renderer import Renderer
 from nue.sim.task import get_task
 from nue.viz.topdown import save_frames, save_topdown
-
-
-def ensure_house(split: str, index: int, root: Path) -> Path:
-    """The folder of house ``index`` of ``split`` under ``root``, generated if missing."""
-    from nue.scene.generator import SPLITS, generate_house
-
-    folder = root / f"{split}_{index:02d}"
-    if not (folder / "floor_trav_0.png").is_file():
-        generate_house(SPLITS[split][index], folder)
-    return folder
 
 
 def run_demo(out: Path, house: int = 0, task_name: str = "paper", seed: int = 0, scenes_root: Path | None = None,

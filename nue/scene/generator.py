@@ -302,3 +302,19 @@ def generate_split(split: str, out_root: str | Path, config: HouseConfig = House
         if progress:
             print(f"[{k + 1}/{len(SPLITS[split])}] {folder} ({status}, seed {seed})", file=sys.stderr)
     return paths
+
+
+def ensure_house(split: str, index: int, root: str | Path, config: HouseConfig = HouseConfig()) -> Path:
+    """``root/<split>_<NN>/``: house ``index`` of ``split``, (re)generated unless a complete copy of
+    exactly this house (seed, config, generator version) is there. For caches the package owns."""
+    if split not in SPLITS:
+        raise ConfigError(split, f"unknown split; choose one of {sorted(SPLITS)}")
+    seed = SPLITS[split][index]
+    folder = Path(root) / f"{split}_{index:02d}"
+    if _complete(folder):
+        try:
+            _check_existing(folder, seed, config)
+            return folder
+        except SceneError:
+            shutil.rmtree(folder)
+    return generate_house(seed, folder, config)
