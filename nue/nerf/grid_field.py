@@ -1,0 +1,216 @@
+"""A dense voxel-grid radiance field (DVGO-style) with the same outputs as the MLP field.
+
+Each voxel corner stores raw density, raw variance and a small appearance code; a point reads them by
+trilinear interpolation (one ``embedding_bag`` per query batch, so training touches — and its sparse
+gradient names — only the voxels near the samples); a small colour MLP turns the code and the view
+direction into the 64-d colour feature f_c and RGB. Parameters are local: space no frame has sampled
+keeps its initial values (near-zero density, initial variance), which is what makes the rendered
+uncertainty of unseen space stand out. On CPU it is far cheaper than the MLP trunk per point.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from nue.nerf.encoding import PositionalEncoding
+from nue.nerf.field import FieldOutputs
+
+
+@dataclass(frozen=True)
+class GridFieldConfig:
+    """Geometry and heads of :class:`GridField` (lengths in metres of the episode frame)."""
+
+    voxel_size: float = 0.15
+    """Edge of a voxel, metres."""
+    half_extent: float = 12.0
+    """The grid spans [-half_extent, half_extent] in x and y around the start camera position."""
+    z_min: float = -1.0
+    """Lowest z of the grid relative to the start camera position (the floor is at -mount_height)."""
+    z_max: float = 3.0
+    """Highest z of the grid relative to the start camera position."""
+    code_dim: int = 16
+    """Channels of the per-voxel appearance code fed to the colour MLP."""
+    dir_freqs: int = 4
+    """Frequencies of the view-direction encoding."""
+    feature_dim: int = 64
+    """Width of the colour feature f_c (= I_cog channels)."""
+    init_density: float = 0.01
+    """Density (per metre) of a voxel that was never trained."""
+    init_variance: float = 0.5
+    """beta^2 of a voxel that was never trained."""
+    beta_min: float = 0.01
+    """Floor of the per-point variance (as the MLP field)."""
+    variance_max: float = 1.0
+    """Ceiling beta_max^2 of the per-point variance: ``beta^2 = beta_min + (beta_max^2 - beta_min)
+    sigmoid(raw)``; with the memory's ``unseen_variance`` equal to it, no rendered I_u exceeds that of
+    never-seen space (``sum w^2 + T <= 1``). 0: unbounded ``softplus(raw) + beta_min`` as the MLP field."""
+    density_scale: float = 20.0
+    """The stored density channel is multiplied by this before the activation: with Adam that is a
+    ``density_scale`` times larger step for density than for variance and code (surfaces must turn
+    opaque within a few visits)."""
+
+
+def _softplus_inverse(y: float) -> float:
+    return math.log(math.expm1(y))
+
+
+class GridField(nn.Module):
+    """Voxel grid + colour MLP. ``forward(x, d)`` takes positions normalised by ``radius`` (as the MLP
+    field) and unit directions per point ``(..., 3)`` or per ray ``(R, 3)`` for ``x (R, N, 3)``.
+
+    ``table``: ``(V + 1, 2 + code_dim)`` rows of voxel corners ``(density raw, variance raw, code)``, the
+    last row standing for every point outside the grid (never trained). All-zero at initialisation, so it
+    is not part of the stored initial weights (``zero_init_keys``).
+    """
+
+    zero_init_keys = ("table",)
+
+    def __init__(self, config: GridFieldConfig = GridFieldConfig(), radius: float = 12.0):
+        super().__init__()
+        self.config = config
+        self.radius = float(radius)
+        c = config
+        self.shape_xyz = (
+            int(math.ceil(2 * c.half_extent / c.voxel_size)) + 1,
+            int(math.ceil(2 * c.half_extent / c.voxel_size)) + 1,
+            int(math.ceil((c.z_max - c.z_min) / c.voxel_size)) + 1,
+        )
+        nx, ny, nz = self.shape_xyz
+        self.n_corners = nx * ny * nz
+        self.table = nn.Parameter(torch.zeros(self.n_corners + 1, 2 + c.code_dim))
+        self.register_buffer("lo", torch.tensor([-c.half_extent, -c.half_extent, c.z_min]), persistent=False)
+        self.register_buffer("strides", torch.tensor([1, nx, nx * ny]), persistent=False)
+        self.register_buffer("dims", torch.tensor([nx, ny, nz]), persistent=False)
+        corner_rows = torch.tensor([i + j * nx + k * nx * ny for k in (0, 1) for j in (0, 1) for i in (0, 1)])
+        self.register_buffer("corner_rows", corner_rows, persistent=False)
+        self.register_buffer("scale_in", torch.full((3,), self.radius / c.voxel_size), persistent=False)
+        scale = torch.ones(2 + c.code_dim)
+        scale[0] = c.density_scale
+        self.register_buffer("channel_scale", scale, persistent=False)
+        self.density_shift = _softplus_inverse(c.init_density)
+        if c.variance_max > 0:
+            if not c.beta_min < c.init_variance < c.variance_max:
+                raise ValueError("grid field needs beta_min < init_variance < variance_max")
+            p = (c.init_variance - c.beta_min) / (c.variance_max - c.beta_min)
+            self.variance_shift = math.log(p / (1 - p))
+        else:
+            self.variance_shift = _softplus_inverse(c.init_variance)
+        self.dir_enc = PositionalEncoding(3, c.dir_freqs)
+        self.colour_code = nn.Linear(c.code_dim, c.feature_dim)
+        self.colour_dir = nn.Linear(self.dir_enc.out_dim, c.feature_dim, bias=False)
+        self.colour_out = nn.Linear(c.feature_dim, 3)
+
+    def grid_parameters(self) -> list[nn.Parameter]:
+        """Parameters with sparse gradients (train with :class:`RowAdam`)."""
+        return [self.table]
+
+    def dense_parameters(self) -> list[nn.Parameter]:
+        """Parameters with dense gradients (the colour MLP)."""
+        return [p for n, p in self.named_parameters() if n != "table"]
+
+    def corners(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Table rows and trilinear weights of the 8 voxel corners around normalised positions
+        ``x (P, 3)``: ``(rows (P, 8) int64, weights (P, 8))``; points outside the grid read the last row
+        with weight 0. Corner k = 4 dz + 2 dy + dx."""
+        g = torch.addcmul(-self.lo / self.config.voxel_size, x, self.scale_in)
+        base = torch.floor(g)
+        frac = g - base
+        base = base.long()
+        inside = ((base >= 0) & (base < self.dims - 1)).all(dim=-1)
+        rows = (base * self.strides).sum(dim=-1, keepdim=True) + self.corner_rows  # (P, 8)
+        rows = torch.where(inside[:, None], rows, self.n_corners)
+        f0, f1 = 1.0 - frac, frac
+        wx = torch.stack([f0[:, 0], f1[:, 0]], dim=-1)
+        wy = torch.stack([f0[:, 1], f1[:, 1]], dim=-1)
+        wz = torch.stack([f0[:, 2], f1[:, 2]], dim=-1) * inside[:, None]
+        w = (wz[:, :, None, None] * wy[:, None, :, None] * wx[:, None, None, :]).reshape(-1, 8)
+        return rows, w
+
+    def interpolate(self, x: torch.Tensor) -> torch.Tensor:
+        """Trilinear read of the table at normalised positions ``x (P, 3)`` -> ``(P, 2 + code_dim)``;
+        the table's gradient is sparse (only the rows read)."""
+        rows, w = self.corners(x)
+        return F.embedding_bag(rows, self.table, per_sample_weights=w, mode="sum", sparse=True)
+
+    def forward(self, x: torch.Tensor, d: torch.Tensor) -> FieldOutputs:
+        batch = x.shape[:-1]
+        raw = self.interpolate(x.reshape(-1, 3)) * self.channel_scale
+        density = F.softplus(raw[:, 0] + self.density_shift)
+        c = self.config
+        if c.variance_max > 0:
+            variance = c.beta_min + (c.variance_max - c.beta_min) * torch.sigmoid(raw[:, 1] + self.variance_shift)
+        else:
+            variance = F.softplus(raw[:, 1] + self.variance_shift) + c.beta_min
+        fc = self.colour_code(raw[:, 2:])
+        dir_part = self.colour_dir(self.dir_enc(d))
+        if d.dim() == x.dim() - 1:
+            fc = fc.view(*d.shape[:-1], -1, fc.shape[-1]) + dir_part.unsqueeze(-2)
+        else:
+            fc = fc + dir_part.reshape(fc.shape)
+        fc = F.relu(fc.reshape(-1, fc.shape[-1]), inplace=True)
+        rgb = torch.sigmoid(self.colour_out(fc))
+        return FieldOutputs(
+            density=density.reshape(batch),
+            rgb=rgb.reshape(*batch, 3),
+            variance=variance.reshape(batch),
+            feature=fc.reshape(*batch, -1),
+        )
+
+    def flops_per_point(self, samples_per_ray: int = 1) -> float:
+        """FLOPs of one point query: trilinear read (8 corners x channels, multiply-add) + colour GEMMs;
+        the direction branch is shared by the ``samples_per_ray`` points of a ray."""
+        c = self.config
+        read = 2.0 * 8 * (2 + c.code_dim)
+        gemm = 2.0 * (c.code_dim * c.feature_dim + c.feature_dim * 3)
+        per_ray = 2.0 * self.dir_enc.out_dim * c.feature_dim
+        return read + gemm + per_ray / max(samples_per_ray, 1)
+
+
+class RowAdam:
+    """Adam for a table trained through sparse row gradients, updating only the rows a step touched.
+
+    Same update as ``torch.optim.SparseAdam`` (lazy Adam: the moments of untouched rows do not decay),
+    without its sort: duplicate rows of the uncoalesced gradient are summed with ``index_add_`` into a
+    dense buffer and the touched rows found with a boolean mask. ``table (V, C)``.
+    """
+
+    def __init__(self, table: nn.Parameter, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
+        self.table, self.lr, self.betas, self.eps = table, lr, betas, eps
+        self.exp_avg = torch.zeros_like(table, requires_grad=False)
+        self.exp_avg_sq = torch.zeros_like(table, requires_grad=False)
+        self.grad_sum = torch.zeros_like(table, requires_grad=False)
+        self.touched = torch.zeros(table.shape[0], dtype=torch.bool, device=table.device)
+        self.steps = 0
+
+    def zero_grad(self, set_to_none: bool = True) -> None:
+        self.table.grad = None
+
+    @torch.no_grad()
+    def step(self) -> None:
+        g = self.table.grad
+        if g is None:
+            return
+        self.steps += 1
+        if g.is_sparse:
+            idx, vals = g._indices()[0], g._values()
+        else:
+            idx = torch.nonzero(g.abs().sum(dim=1)).squeeze(1)
+            vals = g[idx]
+        self.grad_sum.index_add_(0, idx, vals)
+        self.touched[idx] = True
+        rows = torch.nonzero(self.touched).squeeze(1)
+        grad = self.grad_sum[rows]
+        b1, b2 = self.betas
+        m = self.exp_avg[rows].mul_(b1).add_(grad, alpha=1 - b1)
+        v = self.exp_avg_sq[rows].mul_(b2).addcmul_(grad, grad, value=1 - b2)
+        self.exp_avg[rows] = m
+        self.exp_avg_sq[rows] = v
+        step_size = self.lr * math.sqrt(1 - b2**self.steps) / (1 - b1**self.steps)
+        self.table[rows] -= step_size * m / (v.sqrt() + self.eps)
+        self.grad_sum[rows] = 0.0
+        self.touched[rows] = False
