@@ -1,0 +1,223 @@
+"""Exploration coverage: floor area seen by the depth camera, per step, per episode and averaged per method.
+
+A floor cell counts as *seen* once the depth camera sees the floor there (not occluded, within
+``max_range`` metres of the robot; see :func:`seen_floor_cells`). The
+runner accumulates the union of seen cells over an episode and stores the area after every step,
+in m², as ``record.extra["coverage"]``; :func:`mean_coverage_curves` averages those curves per
+method and :func:`plot_coverage` draws them.
+
+Typical use inside an ``on_step`` callback (or with :class:`CoverageTracker`)::
+
+    seen = seen_floor_cells(obs["depth"], obs["pose"], task.camera, env.navgrid, env.floor_z) | seen
+    areas.append(cell_area(env.navgrid) * seen.sum())
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Protocol, Sequence
+
+import numpy as np
+
+from nue.evaluate.metrics import EpisodeRecord
+from nue.sim.camera import depth_to_points, world_from_camera
+from nue.sim.task import CameraConfig
+
+COVERAGE_KEY = "coverage"
+"""Key of ``EpisodeRecord.extra`` holding the per-step seen floor area, m² (list of floats)."""
+
+
+class GridLike(Protocol):
+    """What the coverage functions need of a grid (``nue.scene.navgrid.NavGrid`` fits)."""
+
+    free: np.ndarray
+    """(M, M) cells; only its shape is used."""
+    cell: float
+    """Cell size, metres."""
+
+    def cell_of(self, xy) -> np.ndarray:
+        """World (x, y) (..., 2) -> cell (row, col) (..., 2), int."""
+        ...
+
+    def cell_centre(self, rc) -> np.ndarray:
+        """Cell (row, col) (..., 2) -> world (x, y) (..., 2) of its centre."""
+        ...
+
+
+@dataclass(frozen=True)
+class CoverageConfig:
+    """Which floor cells a depth frame counts as seen."""
+
+    max_range: float = 5.0
+    """Horizontal distance from the robot beyond which the floor does not count, metres
+    (the policy sees depth clipped at 5 m)."""
+    floor_tolerance: float = 0.05
+    """A back-projected point is on the floor when ``|z - floor_z| <=`` this, metres."""
+
+
+def cell_area(grid: GridLike) -> float:
+    """Area of one grid cell, m²."""
+    return float(grid.cell) ** 2
+
+
+def seen_floor_cells(depth: np.ndarray, pose, camera: CameraConfig, grid: GridLike, floor_z: float = 0.0,
+                     config: CoverageConfig = CoverageConfig()) -> np.ndarray:
+    """Grid cells whose floor this depth frame sees: an (M, M) bool mask.
+
+    ``depth``: (H, W) or (H, W, 1) z-depth, metres (0 or NaN = no surface), at the camera's
+    resolution; ``pose``: robot ``(x, y, yaw)``; ``grid``: (M, M) cells (see :class:`GridLike`).
+
+    Every pixel is back-projected (:func:`nue.sim.camera.depth_to_points`); a pixel *sees floor*
+    when its point lies within ``floor_tolerance`` of the floor plane. A cell is seen when its
+    centre is within ``max_range`` (xy) of the robot, projects (on the floor plane) into the image,
+    and the pixel it lands in sees floor (so occluded floor does not count), or when a floor point
+    falls inside it. Projecting cell centres leaves no holes where far floor rows are sparse.
+    """
+    h, w = camera.height, camera.width
+    z = np.nan_to_num(np.asarray(depth, dtype=np.float64).reshape(h, w), nan=0.0)
+    pts = depth_to_points(z, pose, camera, floor_z)
+    x0, y0 = float(pose[0]), float(pose[1])
+    floor_px = (z > 0) & (np.abs(pts[..., 2] - floor_z) <= config.floor_tolerance)
+    floor_px &= np.hypot(pts[..., 0] - x0, pts[..., 1] - y0) <= config.max_range
+    m_rows, m_cols = grid.free.shape
+    mask = np.zeros((m_rows, m_cols), dtype=bool)
+    # 1) cells containing a floor point
+    rc = np.asarray(grid.cell_of(pts[floor_px][:, :2])).reshape(-1, 2)
+    ok = (rc[:, 0] >= 0) & (rc[:, 0] < m_rows) & (rc[:, 1] >= 0) & (rc[:, 1] < m_cols)
+    mask[rc[ok, 0], rc[ok, 1]] = True
+    # 2) cells in range whose centre's floor point projects onto a pixel that sees floor
+    lo = np.asarray(grid.cell_of((x0 - config.max_range, y0 - config.max_range)))
+    hi = np.asarray(grid.cell_of((x0 + config.max_range, y0 + config.max_range)))
+    lo, hi = np.clip(lo, 0, [m_rows - 1, m_cols - 1]), np.clip(hi, 0, [m_rows - 1, m_cols - 1])
+    rr, cc = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+    cells = np.stack([rr.ravel(), cc.ravel()], axis=-1)
+    centres = np.asarray(grid.cell_centre(cells))
+    near = np.hypot(centres[:, 0] - x0, centres[:, 1] - y0) <= config.max_range
+    cells, centres = cells[near], centres[near]
+    m = world_from_camera(pose, camera, floor_z)
+    p = np.c_[centres, np.full(len(centres), floor_z)]
+    p_cam = (p - m[:3, 3]) @ m[:3, :3]  # world -> camera (rotation is orthonormal)
+    front = p_cam[:, 2] > 1e-6
+    u = np.floor(camera.fx * p_cam[front, 0] / p_cam[front, 2] + camera.cx).astype(np.int64)
+    v = np.floor(camera.fy * p_cam[front, 1] / p_cam[front, 2] + camera.cy).astype(np.int64)
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    cells = cells[front][inside]
+    sees = floor_px[v[inside], u[inside]]
+    mask[cells[sees, 0], cells[sees, 1]] = True
+    return mask
+
+
+def coverage_curve(masks: Iterable[np.ndarray], area_per_cell: float) -> np.ndarray:
+    """Cumulative seen area after each step: ``(T,)`` m², ``a_t = area_per_cell * |m_0 ∪ ... ∪ m_t|``.
+
+    ``masks``: T per-step (M, M) bool masks from :func:`seen_floor_cells`. Non-decreasing.
+    Example: masks with 2, then 3 (1 new) cells at 0.05 m -> ``[0.005, 0.0075]``.
+    """
+    seen: np.ndarray | None = None
+    out = []
+    for m in masks:
+        seen = m.copy() if seen is None else (seen | m)
+        out.append(area_per_cell * float(np.count_nonzero(seen)))
+    return np.asarray(out, dtype=np.float64)
+
+
+@dataclass
+class CoverageTracker:
+    """An ``on_step`` callback of :func:`nue.rollout.run_episode` accumulating seen floor area.
+
+    Create one per episode; after the episode ``tracker.areas`` is the list to store as
+    ``record.extra["coverage"]`` (one value per step, m²).
+    """
+
+    camera: CameraConfig
+    """The task's camera (depth images are at its resolution)."""
+    grid: Any
+    """The episode's grid (``env.navgrid``), see :class:`GridLike`."""
+    floor_z: float = 0.0
+    """Floor height, metres (``env.floor_z``)."""
+    config: CoverageConfig = CoverageConfig()
+    """Which pixels count."""
+    areas: list[float] = field(default_factory=list)
+    """Seen area after each step so far, m²."""
+    seen: np.ndarray | None = None
+    """(M, M) bool union of seen cells so far."""
+
+    def __call__(self, step) -> None:
+        m = seen_floor_cells(step.obs["depth"], step.obs["pose"], self.camera, self.grid, self.floor_z, self.config)
+        self.seen = m if self.seen is None else (self.seen | m)
+        self.areas.append(round(cell_area(self.grid) * float(np.count_nonzero(self.seen)), 6))
+
+
+def pad_curves(curves: Sequence[Sequence[float]], length: int | None = None) -> np.ndarray:
+    """Stack curves of different lengths into ``(N, L)``, holding each at its last value.
+
+    An episode that ended early (success) keeps the area it had seen; ``length`` defaults to the
+    longest curve (longer curves are cut). Empty curves count as 0.
+    """
+    length = max((len(c) for c in curves), default=0) if length is None else int(length)
+    out = np.zeros((len(curves), length), dtype=np.float64)
+    for i, c in enumerate(curves):
+        c = np.asarray(c, dtype=np.float64)[:length]
+        if len(c):
+            out[i, : len(c)] = c
+            out[i, len(c):] = c[-1]
+    return out
+
+
+def mean_coverage_curves(records: Sequence[EpisodeRecord], methods: Sequence[str] | None = None,
+                         method_of=lambda r: r.method, length: int | None = None) -> dict[str, np.ndarray]:
+    """Mean seen-area-vs-step curve ``(L,)`` m² per method, over its records carrying coverage.
+
+    Curves are padded with :func:`pad_curves` (ended episodes hold their final area) to the longest
+    curve of all methods (or ``length``). ``methods`` fixes the key order (methods without coverage
+    are left out); ``method_of`` maps a record to its method key.
+    """
+    by_method: dict[str, list] = {}
+    for r in records:
+        cov = r.extra.get(COVERAGE_KEY) if isinstance(r.extra, Mapping) else None
+        if cov is not None:
+            by_method.setdefault(method_of(r), []).append(cov)
+    if length is None:
+        length = max((len(c) for cs in by_method.values() for c in cs), default=0)
+    order = list(methods) if methods is not None else sorted(by_method)
+    order += [m for m in sorted(by_method) if m not in order]
+    return {m: pad_curves(by_method[m], length).mean(axis=0) for m in order if m in by_method}
+
+
+def format_coverage_markdown(curves: Mapping[str, np.ndarray], labels: Mapping[str, str] | None = None,
+                             steps: Sequence[int] = (50, 100, 200, 400)) -> str:
+    """Markdown table of mean seen area (m²) per method at the given steps and at the curves' last step."""
+    length = max((len(c) for c in curves.values()), default=0)
+    steps = sorted({s for s in (*steps, length) if 0 < s <= length})
+    lines = ["| method | " + " | ".join(f"step {s}" for s in steps) + " |", "|" + "---|" * (len(steps) + 1)]
+    lines += [f"| {(labels or {}).get(k, k)} | " + " | ".join(f"{c[s - 1]:.1f}" for s in steps) + " |"
+              for k, c in curves.items()]
+    return "\n".join(lines) + "\n"
+
+
+def plot_coverage(curves: Mapping[str, np.ndarray], path, labels: Mapping[str, str] | None = None,
+                  title: str = "Exploration coverage") -> Path:
+    """Save a PNG of seen floor area (m²) vs step, one line per method (``curves``: name -> (L,))."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for name, c in curves.items():
+        ax.plot(np.arange(1, len(c) + 1), c, lw=1.6, label=(labels or {}).get(name, name))
+    if curves:
+        ax.legend(fontsize=8, loc="lower right")
+    else:
+        ax.text(0.5, 0.5, "no coverage recorded", ha="center", va="center", transform=ax.transAxes)
+    ax.set_xlabel("step")
+    ax.set_ylabel("seen floor area (m²)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

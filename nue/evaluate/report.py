@@ -1,0 +1,318 @@
+"""Evaluation report: Table I from episode records as Markdown / CSV / LaTeX next to the paper's numbers,
+paired-bootstrap differences to NUE, the coverage plot, and the text of RESULTS.md.
+
+* Table data (rows, cells, SR with its 95% Wilson score interval, the paper's numbers):
+  :mod:`nue.evaluate.table`; the statistics: :mod:`nue.evaluate.stats`.
+* Paired differences: per method, ``d_i = x_method,i - x_NUE,i`` over the episodes both ran
+  (matched on (scene, episode_id); repeated runs of a key are averaged), their mean and the 95%
+  percentile interval of 10,000 paired-bootstrap resamples (``numpy.random.default_rng(0)`` per
+  comparison). The episode count resolves the ordering when the interval excludes 0.
+* ``write_report(records, out_dir)`` -> table.md, table.csv, table.tex, coverage.png;
+  ``render_results_md(records, meta)`` -> RESULTS.md text, a pure function of its inputs.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from nue.evaluate import coverage as cov
+from nue.evaluate.metrics import EpisodeRecord, dts, spl, success
+from nue.evaluate.stats import paired_bootstrap, wilson_interval  # noqa: F401  (re-exported)
+from nue.evaluate.table import (  # noqa: F401  (re-exported)
+    DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, method_label, order_methods,
+    paper_table,
+)
+
+METRIC_FNS = {"sr": success, "spl": spl, "dts": dts}
+
+
+# --- paired differences -------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PairedDiff:
+    """Mean paired difference (method - reference) of one metric, with its bootstrap interval."""
+
+    method: str
+    """Method key."""
+    reference: str
+    """Reference method key (``nue``)."""
+    metric: str
+    """``sr`` (fraction), ``spl`` or ``dts``."""
+    n_pairs: int
+    """Episodes both methods ran."""
+    mean: float
+    """Mean of ``x_method - x_reference`` over the pairs."""
+    lo: float
+    """2.5th percentile of the bootstrap means."""
+    hi: float
+    """97.5th percentile of the bootstrap means."""
+
+    @property
+    def resolved(self) -> bool:
+        """The interval excludes 0: the episodes settle which method is ahead."""
+        return self.n_pairs > 0 and (self.lo > 0 or self.hi < 0)
+
+    def verdict(self, higher_is_better: bool = True) -> str:
+        if self.n_pairs == 0:
+            return "no common episodes"
+        if not self.resolved:
+            return "not resolved (CI contains 0)"
+        ahead = (self.lo > 0) == higher_is_better
+        return f"resolved: {method_label(self.method) if ahead else method_label(self.reference)} ahead"
+
+
+def _per_key(records: Sequence[EpisodeRecord], metrics: Sequence[str]) -> dict[tuple[str, str], np.ndarray]:
+    acc: dict[tuple[str, str], list] = {}
+    for r in records:
+        acc.setdefault((r.scene, r.episode_id), []).append([METRIC_FNS[m](r) for m in metrics])
+    return {k: np.mean(v, axis=0) for k, v in acc.items()}
+
+
+def paired_differences(records: Sequence[EpisodeRecord], reference: str = "nue", metrics: Sequence[str] = ("sr", "spl"),
+                       n_boot: int = 10_000, seed: int = 0) -> list[PairedDiff]:
+    """Paired differences to ``reference`` for every other method, per metric (see module doc).
+
+    Empty when the reference has no records; a method sharing no episode gets ``n_pairs = 0``, NaN.
+    """
+    groups = by_method(records)
+    ref = canonical_method(reference)
+    if ref not in groups:
+        return []
+    ref_vals = _per_key(groups[ref], metrics)
+    out = []
+    for key, recs in groups.items():
+        if key == ref:
+            continue
+        vals = _per_key(recs, metrics)
+        common = sorted(set(vals) & set(ref_vals))
+        if common:
+            d = np.array([vals[c] - ref_vals[c] for c in common])
+            mean, lo, hi = paired_bootstrap(d, n_boot, seed)
+        else:
+            mean = lo = hi = np.full(len(metrics), math.nan)
+        out += [PairedDiff(key, ref, m, len(common), float(mean[j]), float(lo[j]), float(hi[j]))
+                for j, m in enumerate(metrics)]
+    return out
+
+
+# --- formatting ---------------------------------------------------------------------------------
+def _f(x: float, spec: str) -> str:
+    return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
+
+
+def _sr_text(c: Cell, ci: bool = True) -> str:
+    if c.n == 0:
+        return "–"
+    s = _f(100 * c.sr, ".1f")
+    return f"{s} [{100 * c.sr_lo:.1f}, {100 * c.sr_hi:.1f}]" if ci else s
+
+
+def _rows_with_paper(rows: Sequence[TableRow], paper) -> list[tuple[str, TableRow, Mapping | None]]:
+    """(source, our row, paper numbers or None) in display order: each of our rows, then its paper row."""
+    out: list[tuple[str, TableRow, Mapping | None]] = []
+    for r in rows:
+        out.append(("ours", r, None))
+        if paper and r.method in paper:
+            out.append(("paper", r, paper[r.method]))
+    return out
+
+
+def _paper_cells(p: Mapping, g: str, dash: str = "–") -> tuple[str, str, str]:
+    return (f"{p[g][0]:.2f}", f"{p[g][1]:.3f}", f"{p[g][2]:.3f}") if g in p else (dash,) * 3
+
+
+def _groups(rows: Sequence[TableRow]) -> list[str]:
+    return list(rows[0].cells) if rows else [*DIFFICULTIES, "total"]
+
+
+def format_markdown(rows: Sequence[TableRow], paper: Mapping | None = None) -> str:
+    """Markdown Table I: SR % [95% Wilson CI], SPL, DTS per group; with ``paper``, each row is followed by the paper's."""
+    groups = _groups(rows)
+    head = ["method", "n"] + [f"{g.capitalize()} {m}" for g in groups for m in ("SR %", "SPL", "DTS")]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for source, row, p in _rows_with_paper(rows, paper):
+        if p is None:
+            cells = [c for g in groups for c in (_sr_text(row.cells[g]), _f(row.cells[g].spl, ".3f"), _f(row.cells[g].dts, ".3f"))]
+            lines.append(f"| {row.label} | {row.cells['total'].n} | " + " | ".join(cells) + " |")
+        else:
+            cells = [c for g in groups for c in _paper_cells(p, g)]
+            lines.append("| *paper* | | " + " | ".join(f"*{c}*" for c in cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def format_counts_markdown(rows: Sequence[TableRow]) -> str:
+    """Episodes (and successes) per cell: ``k / n``."""
+    groups = _groups(rows)
+    lines = ["| method | " + " | ".join(g.capitalize() for g in groups) + " |", "|" + "---|" * (len(groups) + 1)]
+    lines += [f"| {r.label} | " + " | ".join(f"{r.cells[g].successes} / {r.cells[g].n}" for g in groups) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def format_csv(rows: Sequence[TableRow], paper: Mapping | None = None) -> str:
+    """Wide CSV in the layout of ``paper_table1.csv`` (SR in %), plus n, k and the SR interval per group, and ``source``."""
+    groups = _groups(rows)
+    cols = ["method", "label", "source"] + [f"{g}_{c}" for g in groups for c in ("n", "k", "sr", "sr_lo", "sr_hi", "spl", "dts")]
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for source, row, p in _rows_with_paper(rows, paper):
+        vals: list = [row.method, row.label, source]
+        for g in groups:
+            c = row.cells[g]
+            if p is not None:
+                sr, s, d = _paper_cells(p, g, "")
+                vals += ["", "", sr, "", "", s, d]
+            elif c.n == 0:
+                vals += [0, 0, "", "", "", "", ""]
+            else:
+                vals += [c.n, c.successes, *(f"{100 * v:.2f}" for v in (c.sr, c.sr_lo, c.sr_hi)), f"{c.spl:.4f}", f"{c.dts:.4f}"]
+        w.writerow(vals)
+    return buf.getvalue()
+
+
+def _tex(s: str) -> str:
+    return re.sub(r"([&%$#_{}])", r"\\\1", s)
+
+
+def format_latex(rows: Sequence[TableRow], paper: Mapping | None = None) -> str:
+    """A booktabs ``tabular`` of Table I; SR with its 95% Wilson interval in small type; paper rows in italics."""
+    groups = _groups(rows)
+    out = [r"\begin{tabular}{l" + " ccc" * len(groups) + "}", r"\toprule",
+           " & " + " & ".join(rf"\multicolumn{{3}}{{c}}{{{g.capitalize()}}}" for g in groups) + r" \\",
+           " ".join(rf"\cmidrule(lr){{{2 + 3 * i}-{4 + 3 * i}}}" for i in range(len(groups))),
+           "Method & " + " & ".join("SR & SPL & DTS" for _ in groups) + r" \\", r"\midrule"]
+    for source, row, p in _rows_with_paper(rows, paper):
+        if p is None:
+            cells = []
+            for g in groups:
+                c = row.cells[g]
+                sr = "--" if c.n == 0 else rf"{100 * c.sr:.1f}\,{{\scriptsize[{100 * c.sr_lo:.1f}, {100 * c.sr_hi:.1f}]}}"
+                cells += [sr, _f(c.spl, ".3f").replace("–", "--"), _f(c.dts, ".3f").replace("–", "--")]
+            out.append(_tex(row.label) + " & " + " & ".join(cells) + r" \\")
+        else:
+            cells = [rf"\textit{{{v}}}" for g in groups for v in _paper_cells(p, g, "--")]
+            out.append(r"\quad\textit{paper} & " + " & ".join(cells) + r" \\")
+    out += [r"\bottomrule", r"\end{tabular}"]
+    return "\n".join(out) + "\n"
+
+
+def format_paired_markdown(diffs: Sequence[PairedDiff]) -> str:
+    """Table of paired differences to the reference: SR in percentage points, SPL as is, with verdicts."""
+    by: dict[str, dict[str, PairedDiff]] = {}
+    for d in diffs:
+        by.setdefault(d.method, {})[d.metric] = d
+    metrics = list(dict.fromkeys(d.metric for d in diffs))
+    ref = method_label(diffs[0].reference) if diffs else "NUE (full)"
+    scale = {"sr": 100.0}
+    unit = {"sr": " (pp)"}
+    head = ["method", "pairs"] + [h for m in metrics for h in (f"Δ{m.upper()}{unit.get(m, '')} vs {ref} [95% CI]", "verdict")]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for key in order_methods(by):
+        cells = []
+        for m in metrics:
+            d, s = by[key][m], scale.get(m, 1.0)
+            fmt = ".1f" if m == "sr" else ".3f"
+            cells += [f"{_f(s * d.mean, '+' + fmt)} [{_f(s * d.lo, '+' + fmt)}, {_f(s * d.hi, '+' + fmt)}]",
+                      d.verdict(higher_is_better=m != "dts")]
+        lines.append(f"| {method_label(key)} | {next(iter(by[key].values())).n_pairs} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+# --- files --------------------------------------------------------------------------------------
+def load_records(*paths) -> list[EpisodeRecord]:
+    """Records from JSON-lines files (one ``EpisodeRecord.to_dict()`` per line; blank lines skipped)."""
+    out = []
+    for p in paths:
+        with open(p) as f:
+            out += [EpisodeRecord.from_dict(json.loads(line)) for line in f if line.strip()]
+    return out
+
+
+NOTES = (
+    "SR in %, with the 95% Wilson score interval in brackets; SPL; DTS in metres; Total pools all episodes "
+    "(not the mean of the bins). *paper* rows: the paper's Table I (Gibson scenes in iGibson). Our scenes differ, "
+    "so compare orderings, not values. The paper's FR total SPL (.012) cannot follow from its per-bin SPLs (a typo)."
+)
+
+
+def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = True) -> dict[str, Path]:
+    """Write ``table.md`` (table, counts, paired differences), ``table.csv``, ``table.tex`` and ``coverage.png``.
+
+    Returns ``{name: path}``. ``reference``: interleave the paper's rows.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = build_table(records)
+    paper = paper_table() if reference else None
+    md = (f"# Table I\n\n{format_markdown(rows, paper)}\n{NOTES}\n\n## Episodes per cell (successes / episodes)\n\n"
+          f"{format_counts_markdown(rows)}\n## Paired differences to NUE\n\n{format_paired_markdown(paired_differences(records))}")
+    paths = {"table.md": out / "table.md", "table.csv": out / "table.csv", "table.tex": out / "table.tex"}
+    paths["table.md"].write_text(md)
+    paths["table.csv"].write_text(format_csv(rows, paper))
+    paths["table.tex"].write_text(format_latex(rows, paper))
+    curves = _coverage_curves(records)
+    paths["coverage.png"] = cov.plot_coverage(curves, out / "coverage.png", {k: method_label(k) for k in curves})
+    return paths
+
+
+def _coverage_curves(records: Sequence[EpisodeRecord]) -> dict[str, np.ndarray]:
+    keys = order_methods({canonical_method(r.method) for r in records})
+    return cov.mean_coverage_curves(records, keys, method_of=lambda r: canonical_method(r.method))
+
+
+def _ordering_markdown(rows: Sequence[TableRow], paper: Mapping) -> str:
+    shared = [r for r in rows if r.method in paper and r.cells["total"].n]
+    if len(shared) < 2:
+        return ""
+    ours = sorted(shared, key=lambda r: (-r.cells["total"].sr, r.label))
+    theirs = sorted(shared, key=lambda r: (-paper[r.method]["total"][0], r.label))
+    lines = ["| rank | ours (total SR %) | paper (total SR %) |", "|---|---|---|"]
+    lines += [f"| {i + 1} | {a.label} ({100 * a.cells['total'].sr:.1f}) | {b.label} ({paper[b.method]['total'][0]:.2f}) |"
+              for i, (a, b) in enumerate(zip(ours, theirs))]
+    from scipy.stats import kendalltau
+
+    tau = kendalltau([r.cells["total"].sr for r in shared], [paper[r.method]["total"][0] for r in shared]).statistic
+    return "\n".join(lines) + f"\n\nKendall's tau between the two orderings: {_f(float(tau), '.2f')}.\n"
+
+
+def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, object]) -> str:
+    """The text of RESULTS.md, a pure function of the records and ``meta``.
+
+    ``meta``: ``command``, ``date``, ``commit``, ``machine`` (shown first), any other keys
+    (sorted). Same inputs give the same bytes (the bootstrap is seeded).
+    """
+    rows = build_table(records)
+    paper = paper_table()
+    first = ["command", "date", "commit", "machine"]
+    keys = [k for k in first if k in meta] + sorted(k for k in meta if k not in first)
+    info = "\n".join(f"| {k} | {'`%s`' % meta[k] if k == 'command' else meta[k]} |" for k in keys)
+    parts = [
+        "# Results\n",
+        "Image-goal navigation in the layout of the paper's Table I, regenerated from the episode records "
+        "by `nue.evaluate.report.render_results_md`.\n",
+        f"| | |\n|---|---|\n{info}\n",
+        f"## Episodes per cell (successes / episodes)\n\n{format_counts_markdown(rows)}",
+        f"## Table I: ours next to the paper\n\n{format_markdown(rows, paper)}\n{NOTES}\n",
+    ]
+    ordering = _ordering_markdown(rows, paper)
+    if ordering:
+        parts.append(f"## Ordering by total SR\n\n{ordering}")
+    diffs = paired_differences(records)
+    if diffs:
+        parts.append("## Paired differences to NUE\n\nPer method, the mean over the episodes both it and NUE ran "
+                     "(matched on scene and episode id) of its result minus NUE's, with a 95% paired-bootstrap "
+                     "interval (10,000 resamples, seed 0). The episode count resolves the ordering when the "
+                     f"interval excludes 0.\n\n{format_paired_markdown(diffs)}")
+    curves = _coverage_curves(records)
+    if curves:
+        parts.append("## Exploration coverage (mean seen floor area, m²)\n\nEpisodes that ended keep their final "
+                     f"area.\n\n{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
+    return "\n".join(parts)

@@ -1,0 +1,213 @@
+"""Report: Table I cells by hand, Wilson intervals, paired bootstrap, paper numbers, coverage, RESULTS.md regeneration."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import time
+
+import numpy as np
+import pytest
+
+from nue.evaluate import coverage as cov
+from nue.evaluate import report as R
+from nue.evaluate.metrics import EpisodeRecord
+from nue.sim.task import CameraConfig
+
+Z = 1.959963984540054
+
+
+def rec(i, difficulty, ok, l=2.0, p=2.0, final_geo=0.5, method="nue", scene="s0", **extra):
+    return EpisodeRecord(episode_id=str(i), scene=scene, difficulty=difficulty, success=ok, geodesic_start=l,
+                         path_length=p, final_geodesic=final_geo, final_euclidean=final_geo, success_radius=0.8,
+                         method=method, extra=dict(extra))
+
+
+def hand_records():
+    """NUE: easy 1/2 (SPL .5, DTS 2.5 on the failure), medium 1/1 (SPL 1), hard 0/1 (DTS .2)."""
+    return [rec(0, "easy", True, 2.0, 4.0, 0.5), rec(1, "easy", False, 2.0, 6.0, 3.3),
+            rec(2, "medium", True, 3.0, 3.0, 0.6), rec(3, "hard", False, 6.0, 9.0, 1.0)]
+
+
+def wilson_by_roots(k, n):
+    """Wilson's interval = the p solving (k/n - p)^2 = z^2 p (1 - p) / n (a quadratic in p)."""
+    ph = k / n
+    a, b, c = 1 + Z * Z / n, -(2 * ph + Z * Z / n), ph * ph
+    disc = math.sqrt(b * b - 4 * a * c)
+    return (-b - disc) / (2 * a), (-b + disc) / (2 * a)
+
+
+def test_cells_by_hand():
+    (row,) = R.build_table(hand_records())
+    assert row.method == "nue" and row.label == "NUE (full)"
+    assert list(row.cells) == ["easy", "medium", "hard", "total"]
+    e, m, h, t = (row.cells[g] for g in ("easy", "medium", "hard", "total"))
+    assert (e.n, e.successes, e.sr, e.spl, e.dts) == (2, 1, 0.5, pytest.approx(0.25), pytest.approx(1.25))
+    assert (m.n, m.sr, m.spl, m.dts) == (1, 1.0, 1.0, 0.0)
+    assert (h.n, h.sr, h.spl, h.dts) == (1, 0.0, 0.0, pytest.approx(0.2))
+    # totals pool the 4 episodes (not the mean of the three bins)
+    assert (t.n, t.successes, t.sr) == (4, 2, 0.5)
+    assert t.spl == pytest.approx((0.5 + 0 + 1 + 0) / 4) and t.dts == pytest.approx((0 + 2.5 + 0 + 0.2) / 4)
+    for c, k in ((e, 1), (m, 1), (h, 0), (t, 2)):
+        assert (c.sr_lo, c.sr_hi) == pytest.approx(wilson_by_roots(k, c.n), abs=1e-12)
+
+
+def test_wilson_interval_known_values():
+    assert R.wilson_interval(8, 10) == pytest.approx((0.4902, 0.9433), abs=1e-4)  # textbook 8 / 10
+    assert R.wilson_interval(1, 2) == pytest.approx((0.0945, 0.9055), abs=1e-4)
+    lo, hi = R.wilson_interval(0, 20)
+    assert lo == 0.0 and hi == pytest.approx(wilson_by_roots(0, 20)[1]) and hi > 0
+    assert R.wilson_interval(20, 20)[1] == 1.0
+    assert all(math.isnan(v) for v in R.wilson_interval(0, 0))
+
+
+def test_method_names_and_order():
+    recs = [rec(0, "easy", True, method=m) for m in ("custom", "NUE (full)", "fr", "abl_fu_at", "Nav-A3C", "abl_none")]
+    recs.append(rec(1, "easy", False, method="nue"))  # same method as "NUE (full)"
+    rows = R.build_table(recs)
+    assert [r.method for r in rows] == ["fr", "nav_a3c", "abl_none", "abl_fu_at", "nue", "custom"]
+    assert rows[4].cells["total"].n == 2
+    assert R.canonical_method("ablation f_u=on AT=off CBAM=on") == "abl_fu_cbam"
+    assert R.method_label("abl_at_cbam") == "f_u=off AT=on CBAM=on"
+
+
+def test_formats_markdown_csv_latex():
+    rows = R.build_table(hand_records() + [rec(9, "easy", False, method="fr")])
+    md = R.format_markdown(rows, R.paper_table())
+    lines = md.splitlines()
+    assert lines[0].startswith("| method | n | Easy SR % | Easy SPL | Easy DTS | Medium SR %")
+    fr, fr_paper, nue, nue_paper = lines[2:6]
+    assert fr.startswith("| FR | 1 | 0.0 [0.0, 79.3] |") and "*22.37*" in fr_paper and "*0.012*" in fr_paper
+    assert nue.startswith("| NUE (full) | 4 | 50.0 [9.5, 90.5] | 0.250 | 1.250 | 100.0 [20.7, 100.0] | 1.000 | 0.000 |")
+    assert nue.endswith("| 50.0 [15.0, 85.0] | 0.375 | 0.675 |") and "*59.65*" in nue_paper
+    table = list(csv.DictReader(io.StringIO(R.format_csv(rows, R.paper_table()))))
+    assert [(r["method"], r["source"]) for r in table] == [("fr", "ours"), ("fr", "paper"), ("nue", "ours"), ("nue", "paper")]
+    assert table[2]["total_n"] == "4" and table[2]["total_sr"] == "50.00" and table[2]["total_dts"] == "0.6750"
+    assert table[2]["hard_sr_hi"] == f"{100 * wilson_by_roots(0, 1)[1]:.2f}" and table[3]["total_sr"] == "59.65"
+    tex = R.format_latex(rows, R.paper_table())
+    assert tex.startswith(r"\begin{tabular}{l ccc ccc ccc ccc}") and r"\toprule" in tex and r"\bottomrule" in tex
+    assert r"NUE (full) & 50.0\,{\scriptsize[9.5, 90.5]} & 0.250 & 1.250" in tex
+    assert tex.count(r"\\") == 2 + 4  # 2 header rows + 4 table rows
+
+
+def test_paper_table_data():
+    p = R.paper_table()
+    assert len(p) == 13 and {m.key for m in R.METHODS} <= set(p)
+    assert p["nue"]["total"] == (59.65, 0.385, 2.053)
+    assert p["fr"]["total"][1] == 0.012  # the paper's typo, kept as printed
+    assert p["abl_fu_at"]["easy"] == (62.23, 0.422, 1.406) and "SLING+OVRL" in p
+
+
+def test_paired_difference_identical_methods_is_zero():
+    recs = [rec(i, "easy", i % 3 == 0, 2.0, 2.0 + i / 10, method=m) for m in ("nue", "abl_fu") for i in range(30)]
+    (sr, sp) = R.paired_differences(recs)
+    for d in (sr, sp):
+        assert d.method == "abl_fu" and d.n_pairs == 30
+        assert (d.mean, d.lo, d.hi) == (0.0, 0.0, 0.0) and not d.resolved
+    assert sr.verdict() == "not resolved (CI contains 0)"
+
+
+def test_paired_difference_better_everywhere_is_resolved():
+    recs = [rec(i, "hard", False, 6.0, 9.0, 3.0, scene=f"s{i % 2}") for i in range(20)]  # NUE fails everywhere
+    recs += [rec(i, "hard", True, 6.0, 6.0 + 0.1 * i, 0.5, method="abl_none", scene=f"s{i % 2}") for i in range(20)]
+    recs += [rec(99, "hard", True, method="abl_none")]  # NUE never ran it: ignored
+    sr, sp = R.paired_differences(recs)
+    assert sr.n_pairs == 20 and (sr.mean, sr.lo, sr.hi) == (1.0, 1.0, 1.0)
+    assert sp.mean == pytest.approx(np.mean([6.0 / (6.0 + 0.1 * i) for i in range(20)]))
+    assert 0 < sp.lo < sp.mean < sp.hi <= 1.0 and sp.resolved
+    assert sp.verdict() == "resolved: f_u=off AT=off CBAM=off ahead"
+    nue_better = R.paired_differences([rec(i, "easy", True) for i in range(5)] +
+                                      [rec(i, "easy", False, method="fr") for i in range(5)])[0]
+    assert nue_better.hi < 0 and nue_better.verdict() == "resolved: NUE (full) ahead"
+    assert R.paired_differences([rec(0, "easy", True, method="fr")]) == []  # no NUE records
+    md = R.format_paired_markdown([sr, sp])
+    assert "| f_u=off AT=off CBAM=off | 20 | +100.0 [+100.0, +100.0] | resolved" in md
+
+
+def test_paired_bootstrap_matches_normal_approximation_and_is_fast():
+    d = np.tile([0.0, 1.0], 250)  # 500 pairs, mean .5, sd .5
+    t0 = time.perf_counter()
+    mean, lo, hi = R.paired_bootstrap(d, n_boot=10_000, seed=0)
+    assert time.perf_counter() - t0 < 2.0
+    half = Z * 0.5 / math.sqrt(500)
+    assert mean[0] == 0.5 and lo[0] == pytest.approx(0.5 - half, abs=0.01) and hi[0] == pytest.approx(0.5 + half, abs=0.01)
+    again = R.paired_bootstrap(d, n_boot=10_000, seed=0)
+    assert (again[1][0], again[2][0]) == (lo[0], hi[0])
+
+
+def test_coverage_curves_and_pure_functions(box_nav):
+    a = np.zeros(box_nav.free.shape, bool)
+    a[0, :2] = True
+    b = a.copy()
+    b[5, 5] = True
+    np.testing.assert_allclose(cov.coverage_curve([a, b, a], 0.0025), [0.005, 0.0075, 0.0075])
+    recs = [rec(0, "easy", True, coverage=[1.0, 2.0, 3.0]), rec(1, "easy", True, coverage=[2.0]),
+            rec(2, "easy", True, method="fr", coverage=[4.0, 4.0]), rec(3, "easy", True, method="fr")]
+    curves = cov.mean_coverage_curves(recs, ["fr", "nue"])
+    assert list(curves) == ["fr", "nue"]
+    np.testing.assert_allclose(curves["nue"], [1.5, 2.0, 2.5])  # the ended episode holds its final area
+    np.testing.assert_allclose(curves["fr"], [4.0, 4.0, 4.0])
+
+
+def test_seen_floor_cells_flat_floor(box_nav):
+    """Analytic z-depth of an infinite floor 0.6 m below the camera; the robot at (0, 0) looks along +x."""
+    cam = CameraConfig()
+    v = (np.arange(cam.height) + 0.5 - cam.cy) / cam.fy
+    depth = np.where(v > 0, 0.6 / np.maximum(v, 1e-9), 0.0)[:, None].repeat(cam.width, axis=1)
+    seen = cov.seen_floor_cells(depth, (0.0, 0.0, 0.0), cam, box_nav, floor_z=0.0)
+    xy = box_nav.cell_centre(np.argwhere(seen))
+    assert seen.sum() > 100
+    assert xy[:, 0].min() > 0.8 - 0.05  # the lowest image row sees the floor 0.6 * 120 / 90 = 0.8 m ahead
+    assert np.hypot(xy[:, 0], xy[:, 1]).max() <= 5.0 + 0.05  # range limit
+    assert np.all(np.abs(xy[:, 1]) <= xy[:, 0] + 0.05)  # 90 deg field of view
+    for ahead in ((1.0, 0.0), (2.0, 0.5), (3.0, -1.0)):
+        assert seen[tuple(box_nav.cell_of(ahead))]
+    for unseen in ((-1.0, 0.0), (0.5, 0.0), (1.0, 1.5)):
+        assert not seen[tuple(box_nav.cell_of(unseen))]
+    # area of {x >= 0.8, |y| <= x, x^2 + y^2 <= 25}, the floor inside the view and the range
+    g = np.mgrid[0:5:0.005, -5:5:0.005].reshape(2, -1)
+    wedge = ((g[0] >= 0.8) & (np.abs(g[1]) <= g[0]) & (np.hypot(g[0], g[1]) <= 5.0)).sum() * 0.005 ** 2
+    assert seen.sum() * 0.05 ** 2 == pytest.approx(wedge, rel=0.03)
+    # turned by 90 degrees: the same set rotated
+    seen_left = cov.seen_floor_cells(depth, (0.0, 0.0, math.pi / 2), cam, box_nav, floor_z=0.0)
+    assert seen_left[tuple(box_nav.cell_of((0.0, 2.0)))] and not seen_left[tuple(box_nav.cell_of((2.0, 0.0)))]
+
+
+def test_write_report_and_results_md_regenerate(tmp_path):
+    recs = hand_records() + [rec(i, d, i % 2 == 0, method=m, coverage=[0.5 * (k + 1) for k in range(10 + i)])
+                             for m in ("fr", "abl_fu") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
+    paths = R.write_report(recs, tmp_path / "rep")
+    assert sorted(paths) == ["coverage.png", "table.csv", "table.md", "table.tex"]
+    assert all(p.is_file() and p.stat().st_size > 0 for p in paths.values())
+    assert paths["coverage.png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "## Paired differences to NUE" in paths["table.md"].read_text()
+    meta = {"command": "nue eval --split val", "date": "2025-01-02", "commit": "abc1234", "machine": "2 vCPU",
+            "task": "paper"}
+    text = R.render_results_md(recs, meta)
+    (tmp_path / "RESULTS.md").write_text(text)
+    jsonl = tmp_path / "records.jsonl"
+    jsonl.write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs) + "\n")
+    again = R.render_results_md(R.load_records(jsonl), dict(reversed(list(meta.items()))))
+    assert again.encode() == (tmp_path / "RESULTS.md").read_bytes()
+    for s in ("| command | `nue eval --split val` |", "| commit | abc1234 |", "*59.65*", "Wilson",
+              "| NUE (full) | 1 / 2 | 1 / 1 | 0 / 1 | 2 / 4 |", "## Exploration coverage", "## Ordering by total SR"):
+        assert s in text
+
+
+def test_seen_floor_cells_rendered_occlusion(box_nav, box_renderer):
+    """Looking south at the 1 m high box at (1.0, -2.0): the floor behind it and behind the walls is not seen."""
+    cam = CameraConfig()
+    pose = (1.0, 0.5, -math.pi / 2)
+    _, depth = box_renderer.render(pose, 0.0)
+    seen = cov.seen_floor_cells(depth, pose, cam, box_nav, floor_z=0.0)
+    for xy in ((1.0, -1.0), (1.0, -1.6), (2.0, -2.5), (0.0, -2.5)):
+        assert seen[tuple(box_nav.cell_of(xy))], xy
+    for xy in ((1.0, -2.0), (1.0, -2.6), (1.0, -3.3), (1.0, 1.0), (1.0, 0.0)):
+        assert not seen[tuple(box_nav.cell_of(xy))], xy
+    tracker = cov.CoverageTracker(cam, box_nav, 0.0)
+    step = type("Step", (), {"obs": {"depth": depth[..., None], "pose": np.array(pose)}})
+    tracker(step)
+    tracker(step)
+    assert tracker.areas[0] == tracker.areas[1] == pytest.approx(seen.sum() * 0.0025)
