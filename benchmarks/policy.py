@@ -4,13 +4,13 @@ Run as ``python benchmarks/policy.py`` (part of ``make bench``); writes
 ``benchmarks/results/policy.json`` and prints the markdown table for ``benchmarks/README.md``.
 
 * input preparation: ``prepare_input`` on a raw 180 x 240 frame + goal + maps (1 thread);
-* inference: ``model.act`` (eval mode, sampling, Nav-A3C carrying its state), median over
-  ``--runs`` steps after 10 warm-up steps, with 1 and 2 torch threads;
+* inference: ``model.act`` (eval mode, sampling, Nav-A3C carrying its state), median (and min)
+  over ``--runs`` steps after 10 warm-up steps, with 1 and 2 torch threads;
 * training: one AdamW step on cross-entropy (+ angle L1 when the model has the AT head) over
   64 samples fed as ``forward_sequence`` of T = 8 x B = 8 (reactive models fold it into one batch
   of 64; Nav-A3C unrolls its LSTM), median over ``--train-iters`` steps after one warm-up step.
 
-The machine may be shared: ``os.getloadavg()`` is recorded before and after.
+The machine may be shared: ``os.getloadavg()`` is recorded before (``loadavg_before``) and after (``loadavg``).
 """
 
 from __future__ import annotations
@@ -18,9 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
-import subprocess
 import time
 from pathlib import Path
 
@@ -28,7 +26,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from nue.policy import MODEL_PRESETS, ModelConfig, PolicyInput, angle_l1_loss, build_model, get_model_config, prepare_input
+from _common import machine  # benchmarks/_common.py (the script's folder is on sys.path)
+from nue.policy import (
+    MODEL_PRESETS, ModelConfig, PolicyInput, angle_l1_loss, build_model, get_model_config, prepare_input,
+)
 
 OUT = Path(__file__).resolve().parent / "results" / "policy.json"
 
@@ -38,7 +39,9 @@ def bench_configs() -> dict[str, ModelConfig]:
     configs = {name: cfg for name, cfg in MODEL_PRESETS.items()}
     nue = get_model_config("nue")
     configs["nue@maps90x120"] = nue.replace(map_height=90, map_width=120)
-    configs["nue@maps90x120,frame180x240"] = nue.replace(map_height=90, map_width=120, frame_height=180, frame_width=240)
+    configs["nue@maps90x120,frame180x240"] = nue.replace(
+        map_height=90, map_width=120, frame_height=180, frame_width=240
+    )
     return configs
 
 
@@ -52,7 +55,8 @@ def random_input(cfg: ModelConfig, lead: tuple[int, ...], gen: torch.Generator) 
     )
 
 
-def inference_ms(cfg: ModelConfig, runs: int) -> float:
+def inference_ms(cfg: ModelConfig, runs: int) -> tuple[float, float]:
+    """(median, min) ms of one ``act`` step at batch 1; the min approximates the cost on an idle machine."""
     torch.manual_seed(0)
     model = build_model(cfg).eval()
     gen = torch.Generator().manual_seed(0)
@@ -64,7 +68,7 @@ def inference_ms(cfg: ModelConfig, runs: int) -> float:
         _, state = model.act(inp, state, generator=gen)
         if i >= 10:
             times.append(time.perf_counter() - t0)
-    return 1000.0 * statistics.median(times)
+    return 1000.0 * statistics.median(times), 1000.0 * min(times)
 
 
 def prepare_input_ms(cfg: ModelConfig, runs: int) -> float:
@@ -107,18 +111,10 @@ def train_samples_per_s(cfg: ModelConfig, iters: int, t: int = 8, b: int = 8) ->
     return t * b / statistics.median(times)
 
 
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              cwd=Path(__file__).parent).stdout.strip()
-    except OSError:
-        return ""
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=100, help="timed inference steps per config and thread count")
-    parser.add_argument("--train-iters", type=int, default=5, help="timed training steps per config and thread count")
+    parser.add_argument("--train-iters", type=int, default=3, help="timed training steps per config and thread count")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
@@ -134,29 +130,26 @@ def main() -> None:
             "frame_size": list(cfg.frame_size),
             "prepare_input_ms": None,
             "inference_ms_batch1": {},
+            "inference_ms_batch1_min": {},
             "train_samples_per_s_batch64": {},
         }
         torch.set_num_threads(1)
         row["prepare_input_ms"] = round(prepare_input_ms(cfg, args.runs), 3)
         for n in args.threads:
             torch.set_num_threads(n)
-            row["inference_ms_batch1"][str(n)] = round(inference_ms(cfg, args.runs), 3)
+            med, best = inference_ms(cfg, args.runs)
+            row["inference_ms_batch1"][str(n)] = round(med, 3)
+            row["inference_ms_batch1_min"][str(n)] = round(best, 3)
             row["train_samples_per_s_batch64"][str(n)] = round(train_samples_per_s(cfg, args.train_iters), 1)
         results[name] = row
-        print(f"{name:30s} {row['parameters']:>9,d} params  prepare ms {row['prepare_input_ms']}  infer ms {row['inference_ms_batch1']}  "
+        print(f"{name:30s} {row['parameters']:>9,d} params  prepare ms {row['prepare_input_ms']}  "
+              f"infer ms {row['inference_ms_batch1']}  "
               f"train samples/s {row['train_samples_per_s_batch64']}", flush=True)
 
+    facts = machine()  # commit, date, cpus, loadavg (at the end), python, platform
+    facts.update(loadavg_before=[round(x, 2) for x in load_before], torch=torch.__version__)
     report = {
-        "machine": {
-            "commit": _commit(),
-            "date": time.strftime("%Y-%m-%d %H:%M:%S"),
-            "cpus": os.cpu_count(),
-            "loadavg_before": [round(x, 2) for x in load_before],
-            "loadavg_after": [round(x, 2) for x in os.getloadavg()],
-            "python": platform.python_version(),
-            "platform": platform.platform(),
-            "torch": torch.__version__,
-        },
+        "machine": facts,
         "settings": {"inference_runs": args.runs, "train_iters": args.train_iters,
                      "train_batch": "T=8 x B=8 via forward_sequence", "optimizer": "AdamW lr 1e-3"},
         "configs": results,
@@ -165,15 +158,17 @@ def main() -> None:
     args.out.write_text(json.dumps(report, indent=2) + "\n")
 
     threads = [str(n) for n in args.threads]
-    print("\n| config | params | prepare_input ms | " + " | ".join(f"infer ms ({n} thr)" for n in threads) + " | "
+    print("\n| config | params | prepare_input ms | "
+          + " | ".join(f"infer ms ({n} thr) median (min)" for n in threads) + " | "
           + " | ".join(f"train samples/s ({n} thr)" for n in threads) + " |")
     print("|---|---:|---:|" + "---:|" * (2 * len(threads)))
     for name, row in results.items():
         print(f"| `{name}` | {row['parameters']:,} | {row['prepare_input_ms']:.2f} | "
-              + " | ".join(f"{row['inference_ms_batch1'][n]:.2f}" for n in threads) + " | "
+              + " | ".join(f"{row['inference_ms_batch1'][n]:.2f} ({row['inference_ms_batch1_min'][n]:.2f})"
+                           for n in threads) + " | "
               + " | ".join(f"{row['train_samples_per_s_batch64'][n]:.0f}" for n in threads) + " |")
     m = report["machine"]
-    print(f"\nload average before {m['loadavg_before']}, after {m['loadavg_after']}; wrote {args.out}")
+    print(f"\nload average before {m['loadavg_before']}, after {[round(x, 2) for x in m['loadavg']]}; wrote {args.out}")
 
 
 if __name__ == "__main__":

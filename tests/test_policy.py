@@ -1,4 +1,4 @@
-"""Tests for nue.policy: blocks (residual, CBAM), NUE branches and switches, baselines, shared interface, overfitting."""
+"""Tests for nue.policy: blocks (residual, CBAM), NUE branches and switches, baselines, interface, overfitting."""
 
 from __future__ import annotations
 
@@ -364,7 +364,8 @@ def test_prepare_input_normalises_and_resizes():
     i_cog = np.ones((64, 90, 120), np.float32)  # rendered at another size: area-resized to the map size
     inp = prepare_input(rgb, depth, goal, i_u, i_cog, cfg)
     assert inp.rgbd.shape == (1, 4, 90, 120) and inp.rgbd.dtype == torch.float32
-    assert torch.allclose(inp.rgbd[0, 0], torch.ones(90, 120)) and torch.allclose(inp.rgbd[0, 1], torch.full((90, 120), 0.2))
+    assert torch.allclose(inp.rgbd[0, 0], torch.ones(90, 120))
+    assert torch.allclose(inp.rgbd[0, 1], torch.full((90, 120), 0.2))
     assert torch.allclose(inp.rgbd[0, 3, 50:], torch.full((40, 120), 0.5))
     assert torch.allclose(inp.rgbd[0, 3, 1:45], torch.ones(44, 120)) and 0.7 < inp.rgbd[0, 3, 0, 0] < 1.0
     assert inp.goal.shape == (1, 3, 45, 60) and inp.i_u.shape == (1, 1, 45, 60) and inp.i_cog.shape == (1, 64, 45, 60)

@@ -118,7 +118,7 @@ def _image(x, batched: bool, device, name: str) -> Tensor:
     return t.permute(0, 3, 1, 2)
 
 
-def _map(x, batched: bool, channels: int, device, name: str) -> Tensor:
+def _map_tensor(x, batched: bool, channels: int, device, name: str) -> Tensor:
     """(h, w) [1 channel only], (C, h, w) or batched (B, h, w) [1 channel only], (B, C, h, w) -> (B, C, h, w)."""
     t = _as_float_tensor(x, device)
     if not batched:
@@ -172,11 +172,11 @@ def prepare_input(
     if config.uses_i_u:
         if i_u is None:
             raise ValueError(f"model {config.name!r} reads the uncertainty map I_u, but i_u is None")
-        u = _resize(_map(i_u, batched, 1, device, "i_u"), config.map_size)
+        u = _resize(_map_tensor(i_u, batched, 1, device, "i_u"), config.map_size)
     if config.uses_i_cog:
         if i_cog is None:
             raise ValueError(f"model {config.name!r} reads the feature map I_cog, but i_cog is None")
-        cog = _resize(_map(i_cog, batched, config.cog_channels, device, "i_cog"), config.map_size)
+        cog = _resize(_map_tensor(i_cog, batched, config.cog_channels, device, "i_cog"), config.map_size)
     for name, m in (("i_u", u), ("i_cog", cog)):
         if m is not None and m.shape[0] != b:
             raise ValueError(f"{name}: batch {m.shape[0]} does not match rgb batch {b}")

@@ -60,7 +60,9 @@ class NUEPolicy(PolicyModel):
         super().__init__(config)
         c, s = config, config.negative_slope
         cbam = dict(cbam=c.use_cbam, cbam_reduction=c.cbam_reduction, cbam_kernel=c.cbam_kernel, negative_slope=s)
-        self.f_u = ConvBranch(1, c.uncertainty_channels, c.map_grid, c.branch_dim, **cbam) if c.use_uncertainty else None
+        self.f_u = (
+            ConvBranch(1, c.uncertainty_channels, c.map_grid, c.branch_dim, **cbam) if c.use_uncertainty else None
+        )
         self.f_cog = ConvBranch(c.cog_channels + 3, c.cognition_channels, c.map_grid, c.branch_dim, **cbam)
         self.f_p = ConvBranch(4, c.perception_channels, c.perception_grid, c.perception_dim, negative_slope=s)
         self.aux_head = mlp([c.branch_dim, c.aux_hidden, 1], s, final_activation=False) if c.use_aux else None
