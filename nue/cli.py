@@ -96,6 +96,63 @@ def expert(
     typer.echo(format_table(aggregate(recs)))
 
 
+def _ints(text: str) -> tuple[int, ...]:
+    return tuple(int(v) for v in text.split(",") if v.strip()) if text else ()
+
+
+@app.command("collect")
+def collect_cmd(
+    out: Path = typer.Option(Path("data/demos"), help="Collection folder (episode files + manifest)."),
+    scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the generated houses live (made if missing)."),
+    scene: list[Path] = typer.Option([], help="Explicit scene folder(s) instead of the generated training split."),
+    houses: str = typer.Option("", help="Comma-separated indices of training houses (default: all 21)."),
+    task: str = typer.Option("paper", help="Task preset."),
+    memory: str = typer.Option("fast", help="Memory (NeRF) preset, run online as at test time."),
+    model: str = typer.Option("nue", help="Model preset whose input layout the data use."),
+    episodes_per_bin: int = typer.Option(16, help="Training episodes per difficulty bin per house."),
+    heldout_per_bin: int = typer.Option(2, help="Held-out episodes per bin per house (model selection)."),
+    seed: int = typer.Option(0, help="Seed."),
+    workers: int = typer.Option(1, help="Parallel local worker processes."),
+    ray_address: Optional[str] = typer.Option(None, help="Run episodes as tasks on this Ray cluster."),
+    device: str = typer.Option("cpu", help="Device of the NeRF memory."),
+):
+    """Collect expert demonstrations with the online NeRF memory (resumes if rerun)."""
+    from nue.train.collect import CollectConfig, collect
+
+    cfg = CollectConfig(task=task, memory=memory, model=model, houses=_ints(houses),
+                        scene_dirs=tuple(str(p) for p in scene), episodes_per_bin=episodes_per_bin,
+                        heldout_per_bin=heldout_per_bin, seed=seed, device=device)
+    summary = collect(out, cfg, scenes_root, workers=workers, ray_address=ray_address)
+    typer.echo(f"{summary['episodes']} episodes, {summary['steps']} steps, "
+               f"{summary['bytes_per_step'] / 1024:.0f} KiB/step, expert SR {100 * summary['expert_success_rate']:.1f}% -> {out}")
+
+
+@app.command("train")
+def train_cmd(
+    data: Path = typer.Option(Path("data/demos"), help="Collection folder."),
+    out: Path = typer.Option(Path("runs/nue"), help="Run folder (checkpoints, TensorBoard)."),
+    model: str = typer.Option("nue", help="Model preset: nue, abl_*, fr, nav_a3c."),
+    steps: int = typer.Option(3000, help="Optimiser steps."),
+    batch_size: int = typer.Option(64, help="Batch size (sequences for recurrent models)."),
+    lr: float = typer.Option(1e-3, help="Peak learning rate."),
+    aux_weight: float = typer.Option(0.5, help="Weight of the goal-angle loss."),
+    time_budget: float = typer.Option(0.0, help="Stop after this many minutes (0 = no limit)."),
+    eval_every: int = typer.Option(250, help="Held-out evaluation / checkpoint interval."),
+    seed: int = typer.Option(0, help="Seed."),
+    device: str = typer.Option("cpu", help="cpu or cuda."),
+    resume: bool = typer.Option(False, help="Continue from OUT/last.pt."),
+):
+    """Behaviour cloning (+ auxiliary goal-angle loss) on collected demonstrations."""
+    from nue.train.bc import TrainConfig, train
+
+    cfg = TrainConfig(data=str(data), out=str(out), model=model, steps=steps, batch_size=batch_size, lr=lr,
+                      aux_weight=aux_weight, time_budget_s=60 * time_budget, eval_every=eval_every, seed=seed,
+                      device=device)
+    res = train(cfg, resume=resume)
+    typer.echo(f"{res.step} steps ({res.steps_this_call} in this call, {res.elapsed_s / 60:.1f} min); "
+               f"best checkpoint: {res.best}")
+
+
 @app.command("demo")
 def demo(
     out: Path = typer.Option(Path("outputs/demo"), help="Output folder for figures and tables."),
@@ -112,11 +169,16 @@ def demo(
 
 
 def main() -> None:
+    from nue.jobs import InjectedFailure
+
     try:
         app()
     except NueError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(2)
+    except InjectedFailure as exc:
+        typer.echo(f"stopped: {exc}", err=True)
+        sys.exit(3)
 
 
 if __name__ == "__main__":

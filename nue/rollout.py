@@ -20,7 +20,7 @@ from nue.sim.expert import ExpertConfig, GeodesicExpert
 class Agent(Protocol):
     """Anything that picks actions: the expert, a trained policy, a mix of both."""
 
-    def reset(self, env: ImageNavEnv, obs: dict[str, np.ndarray]) -> None: ...
+    def reset(self, env: ImageNavEnv, obs: dict[str, np.ndarray], seed: int) -> None: ...
 
     def act(self, obs: dict[str, np.ndarray], maps: Any) -> int: ...
 
@@ -54,7 +54,7 @@ class ExpertAgent:
         self.config = config
         self.expert: GeodesicExpert | None = None
 
-    def reset(self, env: ImageNavEnv, obs) -> None:
+    def reset(self, env: ImageNavEnv, obs, seed: int = 0) -> None:
         if self.expert is None or self.expert.nav is not env.navgrid or self.expert.task is not env.task:
             self.expert = GeodesicExpert(env.navgrid, env.task, self.config)
         self.expert.reset(env.goal_xy)
@@ -76,7 +76,8 @@ def run_episode(
 ) -> EpisodeRecord:
     """Run one episode to its end and return its record.
 
-    ``seed`` seeds the env's reset (when it draws the episode) and the memory's ray sampling.
+    ``seed`` seeds the env's reset (when it draws the episode), the memory's ray sampling and the
+    agent's action sampling.
     """
     options: dict[str, Any] = {}
     if episode is not None:
@@ -86,7 +87,7 @@ def run_episode(
     obs, info = env.reset(seed=seed, options=options)
     if memory is not None:
         memory.reset(seed, start_pose=obs["pose"], floor_z=env.floor_z)
-    agent.reset(env, obs)
+    agent.reset(env, obs, seed)
     t = 0
     while True:
         maps = memory.render_maps(obs["pose"], obs["depth"], floor_z=env.floor_z) if memory is not None else None

@@ -1,0 +1,70 @@
+"""A trained policy as an agent of the shared loop: observation + memory maps -> action.
+
+The same ``prepare_input`` as in training turns the raw observation and the NeRF maps into the
+network's input; the recurrent state (Nav-A3C) is carried across steps and reset per episode.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from nue.policy.base import PolicyModel
+from nue.policy.inputs import prepare_input
+
+
+class PolicyAgent:
+    """Acts with ``model`` (sampling from softmax(logits), or argmax if ``greedy``)."""
+
+    def __init__(self, model: PolicyModel, greedy: bool = False, device: str | torch.device = "cpu"):
+        self.model = model.to(device).eval()
+        self.config = model.config
+        self.greedy = greedy
+        self.device = torch.device(device)
+        self.generator = torch.Generator(device="cpu")
+        self.last_aux: float | None = None
+        self.last_input = None
+
+    def reset(self, env, obs, seed: int = 0) -> None:
+        """New episode: initial recurrent state; action sampling seeded by the episode's ``seed``."""
+        self.state = self.model.initial_state(1, self.device)
+        self.generator.manual_seed(int(np.random.SeedSequence([seed, 1]).generate_state(1)[0]))
+
+    def policy_input(self, obs, maps):
+        i_u = getattr(maps, "i_u", None) if maps is not None else None
+        i_cog = getattr(maps, "i_cog", None) if maps is not None else None
+        return prepare_input(obs["rgb"], obs["depth"], obs["goal"], i_u, i_cog, self.config, device=self.device)
+
+    def act(self, obs, maps) -> int:
+        inp = self.policy_input(obs, maps)
+        self.last_input = inp
+        with torch.no_grad():
+            out = self.model(inp, self.state)
+        self.state = out.state
+        self.last_aux = None if out.aux_angle is None else float(out.aux_angle[0])
+        if self.greedy:
+            return int(out.logits[0].argmax())
+        probs = torch.softmax(out.logits[0].float().cpu(), dim=-1)
+        return int(torch.multinomial(probs, 1, generator=self.generator)[0])
+
+
+class MixedAgent:
+    """DAgger's rollout policy: with probability ``beta`` the expert's action, else the policy's.
+
+    ``last_expert_action`` always holds the expert's label for the current state.
+    """
+
+    def __init__(self, policy: PolicyAgent, expert, beta: float):
+        self.policy, self.expert, self.beta = policy, expert, float(beta)
+        self.rng = np.random.default_rng(0)
+        self.last_expert_action: int | None = None
+
+    def reset(self, env, obs, seed: int = 0) -> None:
+        self.policy.reset(env, obs, seed)
+        self.expert.reset(env, obs, seed)
+        self.rng = np.random.default_rng(np.random.SeedSequence([seed, 2]))
+
+    def act(self, obs, maps) -> int:
+        self.last_expert_action = int(self.expert.act(obs, maps))
+        policy_action = self.policy.act(obs, maps)
+        return self.last_expert_action if self.rng.random() < self.beta else policy_action

@@ -1,0 +1,1 @@
+"""Imitation learning: demonstration collection with the online NeRF, datasets, behaviour cloning, DAgger."""

@@ -1,0 +1,317 @@
+"""``nue train``: behaviour cloning on demonstrations — cross-entropy on the expert's actions (class
+balanced) plus lambda * L1 on the goal angle when the model has the auxiliary head.
+
+Reads top to bottom: config, distributed setup, data, model, optimiser and schedule, resume, loop
+(with TensorBoard scalars under ``losses/``, ``metrics/``, ``charts/``), held-out evaluation and
+atomic checkpoints (``last.pt`` to resume, ``best.pt`` by held-out action accuracy — model selection
+on held-out episodes of the training houses). Every model trains through ``forward_sequence`` on
+(T, B) batches (T = 1 for reactive models), so the loop never branches on the model type.
+Multi-process data parallel: launch with ``torchrun``; ranks split each batch (gloo on CPU, nccl on GPU).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from nue.errors import CheckpointError, DataError
+from nue.train.checkpoint import git_commit, load_checkpoint, save_checkpoint
+from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Behaviour-cloning run."""
+
+    data: str = "data/demos"
+    """Collection folder (``nue collect --out``)."""
+    out: str = "runs/nue"
+    """Run folder: checkpoints and TensorBoard logs."""
+    model: str = "nue"
+    """Model preset (``nue``, an ablation, ``fr``, ``nav_a3c``)."""
+    steps: int = 3000
+    """Optimiser steps."""
+    batch_size: int = 64
+    """Samples per step (summed over data-parallel ranks); sequences for recurrent models."""
+    seq_len: int = 8
+    """Recurrent models: steps per training sequence (truncated BPTT)."""
+    lr: float = 1e-3
+    """Peak AdamW learning rate."""
+    weight_decay: float = 1e-4
+    """AdamW weight decay."""
+    warmup: int = 100
+    """Linear warm-up steps, then cosine decay to ``lr * final_lr_ratio``."""
+    final_lr_ratio: float = 0.05
+    """Learning rate at the last step relative to the peak."""
+    aux_weight: float = 0.5
+    """lambda of the goal-angle L1 loss (radians) when the model has the auxiliary head."""
+    class_balance: float = 0.5
+    """Class weights (n / n_c)^p normalised to mean 1: p = 0 none, 1 inverse frequency, 0.5 in between."""
+    grad_clip: float = 5.0
+    """Gradient-norm clip."""
+    buffer_episodes: int = 64
+    """Episodes per shuffle buffer."""
+    eval_every: int = 250
+    """Held-out evaluation and checkpoint interval, steps."""
+    log_every: int = 25
+    """TensorBoard scalar interval, steps."""
+    time_budget_s: float = 0.0
+    """Stop (and checkpoint) after this many seconds of training; 0 = no limit."""
+    seed: int = 0
+    """Seed of the model initialisation and of batch sampling."""
+    device: str = "cpu"
+    """Training device."""
+    verify_data: bool = True
+    """Check every episode file's checksums when opening the data (bad files are skipped)."""
+
+    def replace(self, **kw) -> "TrainConfig":
+        return dataclasses.replace(self, **kw)
+
+
+def _dist():
+    """(rank, world): initialise torch.distributed when launched by torchrun."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not torch.distributed.is_initialized():
+        backend = "nccl" if torch.cuda.is_available() and os.environ.get("NUE_DDP_BACKEND") != "gloo" else "gloo"
+        torch.distributed.init_process_group(backend)
+    return (torch.distributed.get_rank() if world > 1 else 0), world
+
+
+def lr_factor(step: int, cfg: TrainConfig) -> float:
+    """Warm-up then cosine: the learning-rate multiplier at ``step``."""
+    if step < cfg.warmup:
+        return (step + 1) / cfg.warmup
+    p = min(1.0, (step - cfg.warmup) / max(1, cfg.steps - cfg.warmup))
+    return cfg.final_lr_ratio + (1 - cfg.final_lr_ratio) * 0.5 * (1 + math.cos(math.pi * p))
+
+
+def class_weights(counts: np.ndarray, power: float) -> torch.Tensor:
+    """(n / n_c)^power, normalised to mean 1 over the classes present."""
+    counts = np.maximum(counts.astype(np.float64), 1.0)
+    w = (counts.sum() / counts) ** power
+    return torch.as_tensor(w / w.mean(), dtype=torch.float32)
+
+
+def bc_loss(out, batch, weights: torch.Tensor, aux_weight: float):
+    """(total, cross-entropy, angle L1 or None) of a forward_sequence output against a batch."""
+    from nue.policy.base import angle_l1_loss
+
+    logits = out.logits.reshape(-1, out.logits.shape[-1])
+    ce = F.cross_entropy(logits, batch.action.reshape(-1), weight=weights.to(logits.device))
+    if out.aux_angle is None:
+        return ce, ce, None
+    aux = angle_l1_loss(out.aux_angle.reshape(-1), batch.goal_angle.reshape(-1))
+    return ce + aux_weight * aux, ce, aux
+
+
+@torch.no_grad()
+def evaluate(model, data: DemoSet, model_cfg, device, max_episodes: int = 200) -> dict[str, float]:
+    """Held-out action accuracy, balanced accuracy and goal-angle error (degrees), episode by episode."""
+    from nue.policy.base import wrap_angle_t
+
+    model.eval()
+    correct = total = 0
+    per_class = np.zeros((2, model_cfg.num_actions))
+    angle_err = []
+    for e in range(min(data.n_episodes, max_episodes)):
+        t = np.arange(data.lengths[e])
+        batch = data.batch(np.full((len(t), 1), e), t[:, None], model_cfg, device)
+        out = model.forward_sequence(batch.inp, model.initial_state(1, device),
+                                     torch.zeros(len(t), 1, dtype=torch.bool, device=device))
+        pred = out.logits.argmax(-1).reshape(-1).cpu().numpy()
+        truth = batch.action.reshape(-1).cpu().numpy()
+        correct += int((pred == truth).sum())
+        total += len(truth)
+        np.add.at(per_class[0], truth, pred == truth)
+        np.add.at(per_class[1], truth, 1)
+        if out.aux_angle is not None:
+            angle_err.append(wrap_angle_t(out.aux_angle.reshape(-1) - batch.goal_angle.reshape(-1)).abs().cpu().numpy())
+    model.train()
+    seen = per_class[1] > 0
+    res = {"action_accuracy": correct / max(total, 1),
+           "balanced_accuracy": float((per_class[0][seen] / per_class[1][seen]).mean()) if seen.any() else 0.0}
+    if angle_err:
+        res["angle_error_deg"] = float(np.degrees(np.concatenate(angle_err).mean()))
+    return res
+
+
+@dataclass
+class TrainResult:
+    """Where a run left its checkpoints and how far it got."""
+
+    best: Path
+    last: Path
+    step: int
+    """Optimiser steps done in total (including before a resume)."""
+    steps_this_call: int
+    elapsed_s: float
+
+
+FAIL_AT_ENV = "NUE_FAIL_AT_STEP"
+"""Tests: raise InjectedFailure right after the checkpoint at this step (as if the job were killed)."""
+
+
+def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> TrainResult:
+    """Run (or resume from ``out/last.pt``) behaviour cloning."""
+    from tqdm import tqdm
+
+    from nue.nerf.config import MemoryConfig
+    from nue.nerf.online import OnlineNeRF
+    from nue.policy import build_model
+    from nue.policy.config import get_model_config
+    from nue.sim.task import get_task
+    from nue.train.collect import manifest_hash
+
+    rank, world = _dist()
+    device = torch.device(cfg.device)
+    out_dir = Path(cfg.out)
+    if cfg.batch_size % world:
+        raise DataError(None, f"batch size {cfg.batch_size} is not divisible by {world} processes")
+
+    # -- data ------------------------------------------------------------------------------------
+    data = DemoSet(cfg.data, "train", verify=cfg.verify_data)
+    if data.n_episodes == 0:
+        raise DataError(Path(cfg.data) / "train", "no usable episode files")
+    heldout = DemoSet(cfg.data, "heldout", verify=cfg.verify_data) if (Path(cfg.data) / "heldout").is_dir() else None
+    task = get_task(data.manifest["task"])
+    model_cfg = get_model_config(cfg.model).for_task(task)
+    data.check_layout(model_cfg)
+    weights = class_weights(data.action_counts(model_cfg.num_actions), cfg.class_balance)
+
+    # -- model, optimiser, schedule ----------------------------------------------------------------
+    torch.manual_seed(cfg.seed)
+    model = build_model(model_cfg).to(device)
+    net = SequenceForward(model)
+    if world > 1:
+        net = torch.nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda" else None)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_factor(s, cfg))
+    rng = np.random.default_rng([cfg.seed, rank])
+    step, best = 0, -1.0
+    elapsed = 0.0
+    fail_at = int(os.environ.get(FAIL_AT_ENV, "0") or 0)
+    if resume and (out_dir / "last.pt").is_file():
+        ck = load_checkpoint(out_dir / "last.pt")
+        if ck["model_config"] != model_cfg.to_dict():
+            raise CheckpointError(out_dir / "last.pt", "was trained with another model config; use another --out")
+        model.load_state_dict(ck["model_state"])
+        opt.load_state_dict(ck["optimizer"])
+        sched.load_state_dict(ck["scheduler"])
+        step, best, elapsed = ck["step"], ck.get("best", -1.0), ck.get("elapsed_s", 0.0)
+        rng.bit_generator.state = ck["rng_states"][rank]
+    per_rank = cfg.batch_size // world
+    if model_cfg.recurrent:
+        sampler = SequenceSampler(data, per_rank, cfg.seq_len, rng, rank=0, world=1)
+    else:
+        sampler = BufferSampler(data, per_rank, rng, cfg.buffer_episodes, rank=0, world=1)
+
+    memory_cfg = MemoryConfig.from_dict(data.manifest["memory"])
+    meta = {
+        "task": dataclasses.asdict(task),
+        "memory": data.manifest["memory"],
+        "memory_init": OnlineNeRF(memory_cfg, task.camera).initial_state(),
+        "model_config": model_cfg.to_dict(),
+        "manifest_hash": manifest_hash(data.manifest),
+        "scenes": data.manifest["scenes"],
+        "git_commit": git_commit(),
+        "train_config": dataclasses.asdict(cfg),
+        "data": {"episodes": data.n_episodes, "steps": len(data), "skipped": [str(p) for p, _ in data.skipped]},
+    }
+    writer = None
+    if rank == 0:
+        from torch.utils.tensorboard import SummaryWriter
+
+        writer = SummaryWriter(str(out_dir / "tb"))
+
+    def checkpoint(name: str, full: bool, metrics: dict | None = None) -> Path:
+        payload = {**meta, "model_state": model.state_dict(), "step": step, "best": best, "elapsed_s": elapsed,
+                   "metrics": metrics or {}}
+        if full:
+            states = [rng.bit_generator.state]
+            if world > 1:
+                gathered = [None] * world
+                torch.distributed.all_gather_object(gathered, rng.bit_generator.state)
+                states = gathered
+            payload.update(optimizer=opt.state_dict(), scheduler=sched.state_dict(), rng_states=states)
+        return save_checkpoint(out_dir / name, payload) if rank == 0 else out_dir / name
+
+    # -- loop ------------------------------------------------------------------------------------
+    model.train()
+    it = iter(sampler)
+    bar = tqdm(total=cfg.steps, initial=step, desc=f"train {model_cfg.name}", disable=not progress or rank > 0)
+    t_start = time.perf_counter() - elapsed
+    first_step = step
+    samples_seen, t_window = 0, time.perf_counter()
+    while step < cfg.steps:
+        drawn = next(it)
+        if model_cfg.recurrent:
+            eps, steps_, reset = drawn
+            batch = data.batch(eps, steps_, model_cfg, device)
+            reset_t = torch.as_tensor(reset, device=device)
+        else:
+            eps, steps_ = drawn
+            batch = data.batch(eps[None], steps_[None], model_cfg, device)
+            reset_t = torch.ones(batch.action.shape, dtype=torch.bool, device=device)
+        out = net(batch.inp, model.initial_state(reset_t.shape[1], device), reset_t)
+        loss, ce, aux = bc_loss(out, batch, weights, cfg.aux_weight)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+        opt.step()
+        sched.step()
+        step += 1
+        samples_seen += batch.action.numel() * world
+        bar.update(1)
+        elapsed = time.perf_counter() - t_start
+        if writer is not None and step % cfg.log_every == 0:
+            writer.add_scalar("losses/total", loss.item(), step)
+            writer.add_scalar("losses/action_ce", ce.item(), step)
+            if aux is not None:
+                writer.add_scalar("losses/goal_angle_l1", aux.item(), step)
+            writer.add_scalar("charts/learning_rate", sched.get_last_lr()[0], step)
+            writer.add_scalar("charts/grad_norm", float(gnorm), step)
+            writer.add_scalar("charts/samples_per_s", samples_seen / max(time.perf_counter() - t_window, 1e-9), step)
+            samples_seen, t_window = 0, time.perf_counter()
+        out_of_time = cfg.time_budget_s > 0 and elapsed >= cfg.time_budget_s
+        if step % cfg.eval_every == 0 or step == cfg.steps or out_of_time:
+            metrics = evaluate(model, heldout, model_cfg, device) if heldout is not None and heldout.n_episodes else {}
+            if writer is not None:
+                for k, v in metrics.items():
+                    writer.add_scalar(f"metrics/{k}", v, step)
+            score = metrics.get("action_accuracy", -loss.item())
+            if score > best:
+                best = score
+                checkpoint("best.pt", full=False, metrics=metrics)
+            checkpoint("last.pt", full=True, metrics=metrics)
+            bar.set_postfix(loss=f"{loss.item():.3f}", **{k: f"{v:.3f}" for k, v in metrics.items()})
+            if fail_at and step >= fail_at:
+                from nue.jobs import InjectedFailure
+
+                raise InjectedFailure(f"{FAIL_AT_ENV}={fail_at}: stopping after the checkpoint at step {step}")
+        if out_of_time:
+            break
+    bar.close()
+    if writer is not None:
+        writer.close()
+    if world > 1:
+        torch.distributed.barrier()
+    return TrainResult(out_dir / "best.pt", out_dir / "last.pt", step, step - first_step, elapsed)
+
+
+class SequenceForward(torch.nn.Module):
+    """``forward`` = the policy's ``forward_sequence``, so DistributedDataParallel can wrap it."""
+
+    def __init__(self, model):
+        super().__init__()
+        self.model = model
+
+    def forward(self, inp, state, reset_mask):
+        return self.model.forward_sequence(inp, state, reset_mask)

@@ -1,0 +1,86 @@
+"""Policy checkpoints: weights plus everything needed to run and to refuse a mismatched evaluation.
+
+A checkpoint embeds the task preset, the memory (NeRF) config and its fixed initial weights, the
+model config, the demonstration manifest's hash and scene hashes, the git commit and the training
+config. Saving is atomic (temporary file + rename). ``load_policy`` rebuilds the network;
+``check_compatible`` refuses a task/memory preset or scene set that differs from the stored one.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+import torch
+
+from nue.errors import CheckpointError
+
+FORMAT = "nue-checkpoint/1"
+
+
+def git_commit() -> str:
+    """The repository's HEAD commit ('' outside a checkout)."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                             cwd=Path(__file__).resolve().parent, timeout=10)
+        return out.stdout.strip() if out.returncode == 0 else ""
+    except (OSError, subprocess.SubprocessError):
+        return ""
+
+
+def save_checkpoint(path, payload: dict) -> Path:
+    """Write ``payload`` (with ``format`` added) atomically with ``torch.save``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        torch.save({"format": FORMAT, **payload}, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def load_checkpoint(path, map_location="cpu") -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(path, "checkpoint not found")
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=False)
+    except Exception as exc:
+        raise CheckpointError(path, f"cannot read checkpoint ({type(exc).__name__})") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise CheckpointError(path, f"not a {FORMAT} checkpoint")
+    return ckpt
+
+
+def load_policy(path, device="cpu"):
+    """(model in eval mode, checkpoint dict) from a checkpoint file."""
+    from nue.policy import build_model
+    from nue.policy.config import ModelConfig
+
+    ckpt = load_checkpoint(path)
+    model = build_model(ModelConfig.from_dict(ckpt["model_config"]))
+    try:
+        model.load_state_dict(ckpt["model_state"])
+    except RuntimeError as exc:
+        raise CheckpointError(path, f"weights do not fit the stored model config ({exc})") from None
+    return model.to(device).eval(), ckpt
+
+
+def check_compatible(ckpt: dict, path, task=None, memory=None, scenes: dict[str, str] | None = None) -> None:
+    """Raise :class:`CheckpointError` if the task preset, memory config or a known scene's content
+    differs from what the checkpoint was trained with (scenes absent from training are fine)."""
+    if task is not None and ckpt["task"]["name"] != task.name:
+        raise CheckpointError(path, f"trained for task preset {ckpt['task']['name']!r}, asked to run {task.name!r}")
+    if memory is not None and ckpt.get("memory") is not None and ckpt["memory"] != memory.to_dict():
+        diff = sorted(k for k in set(ckpt["memory"]) | set(memory.to_dict()) if ckpt["memory"].get(k) != memory.to_dict().get(k))
+        raise CheckpointError(path, f"memory preset differs from the trained one in: {', '.join(diff)}")
+    for name, h in (scenes or {}).items():
+        trained = ckpt.get("scenes", {}).get(name)
+        if trained is not None and trained != h:
+            raise CheckpointError(path, f"scene {name} has content {h}, but the policy was trained on content {trained}")

@@ -1,0 +1,293 @@
+"""``nue collect``: expert (or DAgger) episodes in the training houses with the online NeRF memory
+running exactly as at test time; one checksummed, memory-mappable file per episode plus a manifest.
+
+Per step an episode file holds what the policy consumes: ``rgbd`` (T, 4, fh, fw) float16 (already
+normalised by ``prepare_input``), ``i_u`` (T, 1, h, w) and ``i_cog`` (T, 64, h, w) float16, the
+expert's ``action`` label and the ``executed`` action (T,) int8, ``goal_angle`` (T,) float32 and
+``pose`` (T, 3) float32; per episode the goal photo at map and frame size (3, ., .) float16.
+Episodes are written by the driver as they finish (temporary file + rename); rerunning the same
+command skips finished episodes, so a killed collection resumes without duplicates.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import zlib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from nue.errors import DataError
+from nue.jobs import Job, run_jobs
+from nue.train.episode_file import read_header, write_episode_file
+
+FORMAT = "nue-demos/1"
+_CACHE: dict = {}
+
+
+@dataclass(frozen=True)
+class CollectConfig:
+    """What a demonstration collection contains."""
+
+    task: str = "paper"
+    """Task preset."""
+    memory: str = "fast"
+    """Memory (NeRF) preset, run online exactly as at test time."""
+    model: str = "nue"
+    """Model preset whose input layout (frame size, map size, depth scale) the data is stored in."""
+    split: str = "train"
+    """House split to collect in (``train``; the 14 ``val`` houses are for reporting only)."""
+    houses: tuple[int, ...] = ()
+    """Indices of the houses of the split to use; empty = all."""
+    scene_dirs: tuple[str, ...] = ()
+    """Explicit scene folders (e.g. your own Gibson scans) instead of the generated split."""
+    episodes_per_bin: int = 16
+    """Training episodes per difficulty bin per house."""
+    heldout_per_bin: int = 2
+    """Held-out episodes per bin per house, for model selection (never the validation houses)."""
+    seed: int = 0
+    """Seed of episode sampling and of each episode's memory / action sampling."""
+    device: str = "cpu"
+    """Device of the NeRF memory in the workers."""
+
+
+def episode_seed(seed: int, scene: str, episode_id: str) -> int:
+    """Per-episode seed, stable across processes (CRC32, never Python's hash())."""
+    return int(np.random.SeedSequence([seed, zlib.crc32(f"{scene}/{episode_id}".encode())]).generate_state(1)[0])
+
+
+def data_layout(model_cfg) -> dict:
+    """The input layout stored in episode files (checked against a model config at training time)."""
+    return {"frame_size": list(model_cfg.frame_size), "map_size": list(model_cfg.map_size),
+            "max_depth": model_cfg.max_depth, "cog_channels": model_cfg.cog_channels}
+
+
+def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], dict]:
+    """Houses, episodes (generated once, stored under ``episodes/``) and the manifest of a collection."""
+    from nue.nerf.config import get_memory
+    from nue.policy.config import get_model_config
+    from nue.scene.generator import SPLITS, ensure_house
+    from nue.scene.scene import Scene
+    from nue.sim.task import get_task
+
+    task = get_task(cfg.task)
+    model_cfg = get_model_config(cfg.model).for_task(task)
+    memory = get_memory(cfg.memory)
+    if tuple(memory_map := (memory.map_height, memory.map_width)) != tuple(model_cfg.map_size):
+        raise DataError(None, f"memory preset {memory.name!r} renders maps at {memory_map}, model {model_cfg.name!r} "
+                              f"expects {model_cfg.map_size}")
+    if cfg.scene_dirs:
+        scenes = [Scene.load(d) for d in cfg.scene_dirs]
+    else:
+        indices = cfg.houses or tuple(range(len(SPLITS[cfg.split])))
+        scenes = [Scene.load(ensure_house(cfg.split, i, scenes_root)) for i in indices]
+    manifest = {
+        "format": FORMAT,
+        "task": task.name,
+        "memory": memory.to_dict(),
+        "model_layout": data_layout(model_cfg),
+        "split": cfg.split,
+        "scenes": {s.name: s.content_hash for s in scenes},
+        "episodes_per_bin": cfg.episodes_per_bin,
+        "heldout_per_bin": cfg.heldout_per_bin,
+        "seed": cfg.seed,
+    }
+    jobs = []
+    for s in scenes:
+        for part, per_bin, seed in (("train", cfg.episodes_per_bin, cfg.seed), ("heldout", cfg.heldout_per_bin, cfg.seed + 7919)):
+            if per_bin <= 0:
+                continue
+            for ep in _episodes_for(s, task, per_bin, seed, scenes_root):
+                jobs.append(Job(f"{part}/{s.name}/{ep['episode_id']}", {
+                    "scene": str(s.path), "episode": ep, "task": task.name, "memory": cfg.memory,
+                    "model": cfg.model, "seed": episode_seed(cfg.seed, s.name, f"{part}/{ep['episode_id']}"),
+                    "device": cfg.device, "agent": {"kind": "expert"},
+                }))
+    return jobs, manifest
+
+
+def _episodes_for(scene, task, per_bin: int, seed: int, scenes_root: Path) -> list[dict]:
+    from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
+    from nue.sim.episodes import load_episodes, save_episodes
+
+    path = scenes_root / "episodes" / f"{scene.name}_{task.name}_s{seed}_n{per_bin}.json"
+    if path.is_file():
+        eps = load_episodes(path, scene, task)
+    else:
+        eps = generate_episodes(scene, task, EpisodeGenConfig(per_bin=per_bin), seed=seed)
+        save_episodes(path, eps, task)
+    return [asdict(e) for e in eps]
+
+
+def manifest_hash(manifest: dict) -> str:
+    """sha256 (16 hex digits) of the manifest's canonical JSON."""
+    return hashlib.sha256(json.dumps(manifest, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def write_manifest(out: Path, manifest: dict) -> None:
+    """Create ``out/manifest.json``, or check that an existing one describes the same collection."""
+    path = out / "manifest.json"
+    if path.is_file():
+        old = json.loads(path.read_text())
+        if old != manifest:
+            diff = sorted(k for k in set(old) | set(manifest) if old.get(k) != manifest.get(k))
+            raise DataError(path, f"holds a different collection (differs in {', '.join(diff)}); use another --out")
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
+    tmp.replace(path)
+
+
+def episode_path(out: Path, key: str) -> Path:
+    return out / f"{key}.nue"
+
+
+def is_complete(path: Path) -> bool:
+    """A finished episode file (complete header and size; a damaged one is redone)."""
+    if not path.is_file():
+        return False
+    try:
+        read_header(path)
+        return True
+    except DataError:
+        return False
+
+
+def collect(out, cfg: CollectConfig, scenes_root, workers: int = 1, ray_address: str | None = None,
+            progress: bool = True) -> dict:
+    """Run (or resume) a collection into ``out``; returns a summary (episodes, steps, bytes per step)."""
+    out, scenes_root = Path(out), Path(scenes_root)
+    jobs, manifest = plan_collection(cfg, scenes_root)
+    write_manifest(out, manifest)
+    run_jobs(jobs, collect_episode, on_result=lambda job, res: _write(out, job, res),
+             is_done=lambda job: is_complete(episode_path(out, job.key)), workers=workers,
+             ray_address=ray_address, desc="collect", progress=progress)
+    return summarize_collection(out, jobs)
+
+
+def _write(out: Path, job: Job, result) -> None:
+    arrays, meta = result
+    write_episode_file(episode_path(out, job.key), arrays, meta)
+
+
+def summarize_collection(out: Path, jobs) -> dict:
+    steps = total = 0
+    succ = 0
+    for job in jobs:
+        header, _ = read_header(episode_path(out, job.key))
+        steps += header["meta"]["steps"]
+        succ += bool(header["meta"]["success"])
+        total += episode_path(out, job.key).stat().st_size
+    summary = {"episodes": len(jobs), "steps": steps, "bytes": total, "bytes_per_step": total / max(steps, 1),
+               "expert_success_rate": succ / max(len(jobs), 1), "manifest_hash": manifest_hash(json.loads((out / "manifest.json").read_text()))}
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    return summary
+
+
+# ------------------------------------------------------------------------------------------- worker
+def _worker_objects(payload):
+    """Per-process cache of scenes (scene, navgrid, renderer, env) and memories."""
+    from nue.nerf.online import OnlineNeRF
+    from nue.scene.navgrid import NavGrid
+    from nue.scene.scene import Scene
+    from nue.sim.env import ImageNavEnv
+    from nue.sim.renderer import Renderer
+    from nue.sim.task import get_task
+
+    key = (payload["scene"], payload["task"])
+    if key not in _CACHE:
+        task = get_task(payload["task"])
+        scene = Scene.load(payload["scene"])
+        nav = NavGrid.from_scene(scene)
+        _CACHE[key] = ImageNavEnv(scene, task, navgrid=nav, renderer=Renderer(scene, task.camera))
+    env = _CACHE[key]
+    mkey = ("memory", payload["memory"], payload["device"])
+    if mkey not in _CACHE:
+        _CACHE[mkey] = OnlineNeRF(payload["memory"], env.task.camera, device=payload["device"])
+    return env, _CACHE[mkey]
+
+
+def collect_episode(job: Job):
+    """Worker: run one episode with the memory online; return (arrays, meta) for its file."""
+    from nue.policy.config import get_model_config
+    from nue.rollout import ExpertAgent, run_episode
+    from nue.sim.episodes import Episode
+
+    p = job.payload
+    env, memory = _worker_objects(p)
+    ep_dict = {k: tuple(v) if isinstance(v, list) else v for k, v in p["episode"].items()}
+    episode = Episode(**ep_dict)
+    model_cfg = get_model_config(p["model"]).for_task(env.task)
+    agent = _make_agent(p["agent"], env)
+    rec = DemoRecorder(model_cfg, agent)
+    record = run_episode(env, agent, episode=episode, memory=memory, seed=p["seed"], on_step=rec, method=p["agent"]["kind"])
+    meta = {"key": job.key, "scene": env.scene.name, "scene_hash": env.scene.content_hash,
+            "episode_id": episode.episode_id, "difficulty": episode.difficulty, "success": record.success,
+            "steps": record.steps, "seed": p["seed"], "agent": p["agent"], "record": record.to_dict()}
+    return rec.arrays(), meta
+
+
+def _make_agent(spec: dict, env):
+    from nue.rollout import ExpertAgent
+
+    if spec["kind"] == "expert":
+        return ExpertAgent()
+    if spec["kind"] == "dagger":
+        from nue.policy.agent import MixedAgent, PolicyAgent
+        from nue.train.checkpoint import load_policy
+
+        key = ("policy", spec["checkpoint"])
+        if key not in _CACHE:
+            _CACHE[key] = load_policy(spec["checkpoint"])[0]
+        return MixedAgent(PolicyAgent(_CACHE[key], greedy=False), ExpertAgent(), spec["beta"])
+    raise ValueError(f"unknown agent kind {spec['kind']!r}")
+
+
+@dataclass
+class DemoRecorder:
+    """``on_step`` callback that stores, per step, exactly what the policy consumes plus the labels."""
+
+    config: object
+    agent: object
+    steps: list = field(default_factory=list)
+    goal: dict | None = None
+
+    def __call__(self, s) -> None:
+        from nue.policy.config import get_model_config
+        from nue.policy.inputs import prepare_input
+
+        cfg = self.config
+        maps = s.maps
+        inp = prepare_input(s.obs["rgb"], s.obs["depth"], s.obs["goal"], maps.i_u, maps.i_cog, cfg)
+        label = getattr(self.agent, "last_expert_action", None)
+        self.steps.append({
+            "rgbd": inp.rgbd[0].numpy().astype(np.float16),
+            "i_u": maps.i_u.detach().cpu().numpy().astype(np.float16),
+            "i_cog": maps.i_cog.detach().cpu().numpy().astype(np.float16),
+            "action": s.action if label is None else label,
+            "executed": s.action,
+            "goal_angle": float(s.info["goal_angle"]),
+            "pose": np.asarray(s.obs["pose"], dtype=np.float32),
+        })
+        if self.goal is None:  # the goal photo as the map-size (NUE) and frame-size (baselines) inputs see it
+            frame_cfg = get_model_config("fr").replace(num_actions=cfg.num_actions, frame_height=cfg.frame_height,
+                                                       frame_width=cfg.frame_width, max_depth=cfg.max_depth)
+            frame_goal = prepare_input(s.obs["rgb"], s.obs["depth"], s.obs["goal"], None, None, frame_cfg).goal
+            self.goal = {"goal_map": inp.goal[0].numpy().astype(np.float16),
+                         "goal_frame": frame_goal[0].numpy().astype(np.float16)}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        st = self.steps
+        return {
+            "rgbd": np.stack([x["rgbd"] for x in st]),
+            "i_u": np.stack([x["i_u"] for x in st]),
+            "i_cog": np.stack([x["i_cog"] for x in st]),
+            "action": np.array([x["action"] for x in st], dtype=np.int8),
+            "executed": np.array([x["executed"] for x in st], dtype=np.int8),
+            "goal_angle": np.array([x["goal_angle"] for x in st], dtype=np.float32),
+            "pose": np.stack([x["pose"] for x in st]),
+            **self.goal,
+        }

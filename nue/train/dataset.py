@@ -1,0 +1,169 @@
+"""Demonstration data: episode files of a collection, checked, indexed and served as policy batches.
+
+Episodes are memory-mapped; a sampler walks a shuffled buffer of episodes at a time (so the page
+cache holds what is being read when the data outgrow memory) and shuffles their steps. A file that
+is truncated or fails its checksum is reported by name and skipped, never silently used.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from nue.errors import DataError
+from nue.policy.inputs import PolicyInput
+from nue.train.episode_file import read_episode_file
+
+MAP_KEYS = ("i_u", "i_cog")
+
+
+@dataclass
+class Batch:
+    """A training batch: the policy input and its labels (leading dims (B,) or (T, B))."""
+
+    inp: PolicyInput
+    action: torch.Tensor
+    """Expert action labels, long."""
+    goal_angle: torch.Tensor
+    """True goal angle, radians, float."""
+    reset: torch.Tensor | None = None
+    """(T, B) bool for sequences: True where an episode starts."""
+
+
+class DemoSet:
+    """The episodes of one part (``train`` or ``heldout``) of a collection folder."""
+
+    def __init__(self, root, part: str = "train", verify: bool = True, max_episodes: int | None = None):
+        self.root = Path(root)
+        manifest = self.root / "manifest.json"
+        if not manifest.is_file():
+            raise DataError(manifest, "no manifest: not a demonstration folder (run `nue collect` first)")
+        self.manifest = json.loads(manifest.read_text())
+        files = sorted((self.root / part).glob("*/*.nue"))
+        if max_episodes is not None:
+            files = files[:max_episodes]
+        self.episodes: list[dict[str, np.ndarray]] = []
+        self.metas: list[dict] = []
+        self.skipped: list[tuple[Path, str]] = []
+        for f in files:
+            try:
+                arrays, meta = read_episode_file(f, mmap=True, verify=verify)
+            except DataError as exc:
+                self.skipped.append((f, exc.problem))
+                warnings.warn(f"skipping {f}: {exc.problem}", stacklevel=2)
+                continue
+            self.episodes.append(arrays)
+            self.metas.append(meta)
+        lengths = np.array([len(a["action"]) for a in self.episodes], dtype=np.int64)
+        self.lengths = lengths
+        self.offsets = np.concatenate([[0], np.cumsum(lengths)])
+        self.part = part
+
+    def __len__(self) -> int:
+        """Number of steps."""
+        return int(self.offsets[-1])
+
+    @property
+    def n_episodes(self) -> int:
+        return len(self.episodes)
+
+    def check_layout(self, model_cfg) -> None:
+        """Refuse a model whose input sizes differ from the stored ones."""
+        from nue.train.collect import data_layout
+
+        want, have = data_layout(model_cfg), self.manifest["model_layout"]
+        if want != have:
+            raise DataError(self.root / "manifest.json", f"data layout {have} does not fit model {model_cfg.name!r} ({want})")
+
+    def action_counts(self, num_actions: int) -> np.ndarray:
+        counts = np.zeros(num_actions, dtype=np.int64)
+        for a in self.episodes:
+            counts += np.bincount(np.asarray(a["action"], dtype=np.int64), minlength=num_actions)[:num_actions]
+        return counts
+
+    def locate(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Flat step indices -> (episode index, step within episode)."""
+        ep = np.searchsorted(self.offsets, flat, side="right") - 1
+        return ep, flat - self.offsets[ep]
+
+    def batch(self, episodes: np.ndarray, steps: np.ndarray, model_cfg, device="cpu") -> Batch:
+        """Gather the given (episode, step) pairs, any leading shape, into a :class:`Batch`."""
+        shape = episodes.shape
+        ep, st = episodes.ravel(), steps.ravel()
+        goal_key = "goal_map" if model_cfg.kind == "nue" else "goal_frame"
+
+        def gather(key, per_episode=False):
+            parts = [self.episodes[e][key] if per_episode else self.episodes[e][key][t] for e, t in zip(ep, st)]
+            return torch.from_numpy(np.stack(parts).astype(np.float32, copy=False))
+
+        def shaped(x):
+            return x.reshape(*shape, *x.shape[1:]).to(device)
+
+        inp = PolicyInput(
+            rgbd=shaped(gather("rgbd")),
+            goal=shaped(gather(goal_key, per_episode=True)),
+            i_u=shaped(gather("i_u")) if model_cfg.uses_i_u else None,
+            i_cog=shaped(gather("i_cog")) if model_cfg.uses_i_cog else None,
+        )
+        action = torch.as_tensor(np.array([self.episodes[e]["action"][t] for e, t in zip(ep, st)], dtype=np.int64))
+        angle = torch.as_tensor(np.array([self.episodes[e]["goal_angle"][t] for e, t in zip(ep, st)], dtype=np.float32))
+        return Batch(inp, action.reshape(shape).to(device), angle.reshape(shape).to(device))
+
+
+class BufferSampler:
+    """Random step indices, a shuffled buffer of ``buffer_episodes`` episodes at a time.
+
+    ``rank``/``world`` split every buffer between data-parallel processes.
+    """
+
+    def __init__(self, data: DemoSet, batch_size: int, rng: np.random.Generator, buffer_episodes: int = 64,
+                 rank: int = 0, world: int = 1):
+        self.data, self.batch_size, self.rng = data, batch_size, rng
+        self.buffer_episodes, self.rank, self.world = buffer_episodes, rank, world
+
+    def __iter__(self):
+        d = self.data
+        while True:
+            order = self.rng.permutation(d.n_episodes)
+            for s in range(0, len(order), self.buffer_episodes):
+                eps = order[s : s + self.buffer_episodes]
+                ep_idx = np.concatenate([np.full(d.lengths[e], e) for e in eps])
+                st_idx = np.concatenate([np.arange(d.lengths[e]) for e in eps])
+                perm = self.rng.permutation(len(ep_idx))
+                per = self.batch_size * self.world
+                for b in range(0, len(perm) - per + 1, per):
+                    take = perm[b : b + per][self.rank :: self.world]
+                    yield ep_idx[take], st_idx[take]
+
+
+class SequenceSampler:
+    """(T, B) windows of consecutive steps for recurrent models; windows start at random steps and
+    are padded by continuing into the next sampled episode (the reset mask marks the boundary)."""
+
+    def __init__(self, data: DemoSet, batch_size: int, seq_len: int, rng: np.random.Generator, rank: int = 0, world: int = 1):
+        self.data, self.batch_size, self.seq_len, self.rng = data, batch_size, seq_len, rng
+        self.rank, self.world = rank, world
+
+    def __iter__(self):
+        d, T = self.data, self.seq_len
+        while True:
+            eps = np.zeros((T, self.batch_size * self.world), dtype=np.int64)
+            steps = np.zeros_like(eps)
+            reset = np.zeros(eps.shape, dtype=bool)
+            for b in range(eps.shape[1]):
+                e = int(self.rng.integers(d.n_episodes))
+                t = int(self.rng.integers(d.lengths[e]))
+                reset[0, b] = True
+                for i in range(T):
+                    if t >= d.lengths[e]:
+                        e, t = int(self.rng.integers(d.n_episodes)), 0
+                        reset[i, b] = True
+                    eps[i, b], steps[i, b] = e, t
+                    t += 1
+            cols = slice(self.rank, None, self.world)
+            yield eps[:, cols], steps[:, cols], reset[:, cols]
