@@ -1,0 +1,223 @@
+"""Demonstrations and behaviour cloning end to end on two tiny houses: collection round trip, kill and
+resume, parallel / Ray equality, corrupt files, loss falling, resume = uninterrupted, DDP smoke."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from nue.errors import CheckpointError
+from nue.train.collect import CollectConfig, collect
+from nue.train.dataset import DemoSet
+from nue.train.episode_file import read_episode_file
+
+from .conftest import BOX_ROOM
+
+MAP_KEYS = ("i_u", "i_cog")
+
+
+@pytest.fixture(scope="module")
+def houses(tmp_path_factory):
+    root = tmp_path_factory.mktemp("tiny_houses")
+    dirs = []
+    for name in ("room_a", "room_b"):
+        shutil.copytree(BOX_ROOM, root / name)
+        dirs.append(root / name)
+    return dirs
+
+
+def _cli(*args, env_extra=None):
+    env = {**os.environ, **(env_extra or {})}
+    return subprocess.run([sys.executable, "-m", "nue.cli", *map(str, args)], capture_output=True, text=True, env=env)
+
+
+def _files(root: Path) -> dict[str, Path]:
+    return {str(p.relative_to(root)): p for p in sorted(root.glob("*/*/*.nue"))}
+
+
+def _same_episode(a: Path, b: Path) -> None:
+    xa, ma = read_episode_file(a, mmap=False, verify=True)
+    xb, mb = read_episode_file(b, mmap=False, verify=True)
+    assert ma["steps"] == mb["steps"] and set(xa) == set(xb)
+    for k in xa:
+        if k in MAP_KEYS:
+            np.testing.assert_allclose(xa[k].astype(np.float32), xb[k].astype(np.float32), atol=1e-2, err_msg=k)
+        else:
+            assert np.array_equal(xa[k], xb[k]), k
+
+
+@pytest.fixture(scope="module")
+def reference(houses, tmp_path_factory):
+    """An uninterrupted single-process collection."""
+    out = tmp_path_factory.mktemp("reference") / "demos"
+    cfg = CollectConfig(scene_dirs=tuple(map(str, houses)), episodes_per_bin=1, heldout_per_bin=1)
+    collect(out, cfg, out.parent / "scenes", workers=1, progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def demos(houses, tmp_path_factory):
+    """The same collection through the CLI with 2 workers, killed after 3 episodes and rerun."""
+    out = tmp_path_factory.mktemp("resumed") / "demos"
+    args = ["collect", "--out", out, "--scenes-root", out.parent / "scenes", "--scene", houses[0], "--scene", houses[1],
+            "--episodes-per-bin", 1, "--heldout-per-bin", 1, "--workers", 2]
+    first = _cli(*args, env_extra={"NUE_FAIL_AFTER": "3"})
+    assert first.returncode == 3, first.stderr
+    assert len(_files(out)) == 3
+    second = _cli(*args)
+    assert second.returncode == 0, second.stderr
+    assert "12 episodes" in second.stdout
+    return out
+
+
+def test_collection_round_trip(reference):
+    files = _files(reference)
+    assert len(files) == 12 and sum(k.startswith("heldout/") for k in files) == 6
+    arrays, meta = read_episode_file(next(iter(files.values())), verify=True)
+    t = meta["steps"]
+    assert meta["success"] and t == len(arrays["action"]) > 0
+    assert arrays["rgbd"].shape == (t, 4, 90, 120) and arrays["rgbd"].dtype == np.float16
+    assert arrays["i_u"].shape == (t, 1, 45, 60) and arrays["i_cog"].shape == (t, 64, 45, 60)
+    assert arrays["i_cog"].dtype == np.float16 and arrays["goal_map"].shape == (3, 45, 60)
+    assert arrays["goal_frame"].shape == (3, 90, 120) and arrays["pose"].shape == (t, 3)
+    assert arrays["action"].dtype == np.int8 and set(np.unique(arrays["action"])) <= {0, 1, 2}
+    assert np.array_equal(arrays["action"], arrays["executed"])  # expert collection: label = executed
+    assert np.all(np.abs(arrays["goal_angle"]) <= np.pi)
+    assert 0.0 <= float(arrays["rgbd"][..., :3, :, :].min()) and float(arrays["rgbd"].max()) <= 1.0
+
+
+def test_killed_and_resumed_collection_equals_uninterrupted(demos, reference):
+    a, b = _files(demos), _files(reference)
+    assert sorted(a) == sorted(b)
+    for key in a:
+        _same_episode(a[key], b[key])
+
+
+def test_ray_collection_equals_single_process(houses, reference, tmp_path):
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        out = tmp_path / "demos"
+        cfg = CollectConfig(scene_dirs=(str(houses[0]),), episodes_per_bin=1, heldout_per_bin=0)
+        collect(out, cfg, tmp_path / "scenes", ray_address="auto", progress=False)
+    finally:
+        ray.shutdown()
+    got, ref = _files(out), _files(reference)
+    assert sorted(got) == [k for k in sorted(ref) if k.startswith("train/room_a/")]
+    for key, path in got.items():
+        _same_episode(path, ref[key])
+
+
+def test_corrupt_and_truncated_files_are_reported_and_skipped(reference, tmp_path):
+    copy = tmp_path / "demos"
+    shutil.copytree(reference, copy)
+    files = list(_files(copy).values())
+    train_files = [p for p in files if "/train/" in str(p)]
+    data = bytearray(train_files[0].read_bytes())
+    data[-100] ^= 0xFF
+    train_files[0].write_bytes(bytes(data))
+    train_files[1].write_bytes(train_files[1].read_bytes()[:5000])
+    with pytest.warns(UserWarning) as caught:
+        ds = DemoSet(copy, "train")
+    messages = " ".join(str(w.message) for w in caught)
+    assert train_files[0].name in messages and "checksum" in messages
+    assert train_files[1].name in messages and "truncated" in messages
+    assert ds.n_episodes == len(train_files) - 2
+    assert {p for p, _ in ds.skipped} == {train_files[0], train_files[1]}
+
+
+def _fixed_batch_loss(model_cfg_name, state_dict, data_dir):
+    from nue.policy import build_model
+    from nue.policy.config import get_model_config
+    from nue.sim.task import get_task
+    from nue.train.bc import bc_loss, class_weights
+
+    ds = DemoSet(data_dir, "train")
+    cfg = get_model_config(model_cfg_name).for_task(get_task("paper"))
+    model = build_model(cfg)
+    model.load_state_dict(state_dict)
+    model.eval()
+    eps = np.concatenate([np.full(n, e) for e, n in enumerate(ds.lengths)])
+    steps = np.concatenate([np.arange(n) for n in ds.lengths])
+    batch = ds.batch(eps[None], steps[None], cfg)
+    with torch.no_grad():
+        out = model.forward_sequence(batch.inp, None, torch.ones(batch.action.shape, dtype=torch.bool))
+        return float(bc_loss(out, batch, class_weights(ds.action_counts(3), 0.5), 0.5)[0])
+
+
+def test_training_loss_falls(demos, tmp_path):
+    from nue.policy import build_model
+    from nue.policy.config import get_model_config
+    from nue.train.bc import TrainConfig, train
+    from nue.train.checkpoint import load_checkpoint
+
+    torch.manual_seed(0)
+    init = build_model(get_model_config("nue")).state_dict()
+    res = train(TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=60, batch_size=16, warmup=5,
+                            eval_every=30, lr=2e-3), progress=False)
+    last = load_checkpoint(res.last)
+    assert last["step"] == 60 and res.steps_this_call == 60
+    before = _fixed_batch_loss("nue", init, demos)
+    after = _fixed_batch_loss("nue", last["model_state"], demos)
+    assert after < 0.7 * before, (before, after)
+    assert "action_accuracy" in last["metrics"] and "angle_error_deg" in last["metrics"]
+    assert list((tmp_path / "run" / "tb").glob("events.out.tfevents.*"))
+
+
+def test_resume_continues_from_the_saved_step_and_matches(demos, tmp_path):
+    from nue.jobs import InjectedFailure
+    from nue.train.bc import TrainConfig, train
+    from nue.train.checkpoint import load_checkpoint
+
+    cfg = TrainConfig(data=str(demos), out=str(tmp_path / "a"), model="nav_a3c", steps=12, batch_size=4, seq_len=4,
+                      warmup=2, eval_every=6)
+    full = train(cfg, progress=False)
+    os.environ["NUE_FAIL_AT_STEP"] = "6"
+    try:
+        with pytest.raises(InjectedFailure):
+            train(cfg.replace(out=str(tmp_path / "b")), progress=False)
+    finally:
+        del os.environ["NUE_FAIL_AT_STEP"]
+    assert load_checkpoint(tmp_path / "b" / "last.pt")["step"] == 6
+    resumed = train(cfg.replace(out=str(tmp_path / "b")), resume=True, progress=False)
+    assert resumed.step == 12 and resumed.steps_this_call == 6
+    a, b = load_checkpoint(full.last)["model_state"], load_checkpoint(resumed.last)["model_state"]
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], msg=k)
+
+
+def test_ddp_two_processes_gloo(demos, tmp_path):
+    env = {**os.environ, "NUE_DDP_BACKEND": "gloo", "OMP_NUM_THREADS": "1"}
+    res = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+                          "-m", "nue.cli", "train", "--data", str(demos), "--out", str(tmp_path / "ddp"), "--steps", "4",
+                          "--batch-size", "8", "--eval-every", "2"], capture_output=True, text=True, env=env, timeout=240)
+    assert res.returncode == 0, res.stderr[-3000:]
+    from nue.train.checkpoint import load_checkpoint
+
+    assert load_checkpoint(tmp_path / "ddp" / "last.pt")["step"] == 4
+
+
+def test_checkpoint_embeds_presets_and_refuses_mismatches(demos, tmp_path):
+    from nue.nerf.config import get_memory
+    from nue.sim.task import get_task
+    from nue.train.bc import TrainConfig, train
+    from nue.train.checkpoint import check_compatible, load_checkpoint, load_policy
+
+    res = train(TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=2, batch_size=4, eval_every=2), progress=False)
+    model, ckpt = load_policy(res.best)
+    assert ckpt["task"]["name"] == "paper" and ckpt["memory"]["name"] == "fast" and len(ckpt["manifest_hash"]) == 16
+    assert ckpt["memory_init"] and set(ckpt["scenes"]) == {"room_a", "room_b"}
+    check_compatible(ckpt, res.best, get_task("paper"), get_memory("fast"), {"room_a": ckpt["scenes"]["room_a"]})
+    with pytest.raises(CheckpointError, match="trained for task preset 'paper'"):
+        check_compatible(ckpt, res.best, task=get_task("habitat"))
+    with pytest.raises(CheckpointError, match="memory preset differs"):
+        check_compatible(ckpt, res.best, memory=get_memory("authors"))
+    with pytest.raises(CheckpointError, match="scene room_a has content 0000"):
+        check_compatible(ckpt, res.best, scenes={"room_a": "0000000000000000"})
