@@ -50,7 +50,9 @@ _ALIASES.update({_norm("ablation " + m.label): m.key for m in METHODS})
 
 
 def canonical_method(name: str) -> str:
-    """Our key for a method name (``"Nav-A3C"`` -> ``nav_a3c``, ``"NUE (full)"`` -> ``nue``); unknown names pass through."""
+    """Our key for a method name (``"Nav-A3C"`` -> ``nav_a3c``, ``"NUE (full)"`` -> ``nue``).
+
+    Case and punctuation are ignored; unknown names pass through unchanged."""
     return _ALIASES.get(_norm(name), name)
 
 
@@ -134,6 +136,7 @@ def paper_table(path: Path = PAPER_CSV) -> dict[str, dict[str, tuple[float, floa
     with open(path, newline="") as f:
         for row in csv.DictReader(f):
             out[canonical_method(row["method"])] = {
-                g: (float(row[f"{g}_sr"]), float(row[f"{g}_spl"]), float(row[f"{g}_dts"])) for g in (*DIFFICULTIES, "total")
+                g: (float(row[f"{g}_sr"]), float(row[f"{g}_spl"]), float(row[f"{g}_dts"]))
+                for g in (*DIFFICULTIES, "total")
             }
     return out
