@@ -122,8 +122,9 @@ class TraceRecorder:
     (torch or numpy; missing attributes count as None). I_cog is reduced with ``cog_basis``
     (``(mean (C,), basis (3, C))``) when given; else with the PCA basis of the episode's first
     I_cog (``cog_mode="pca"``) or the fixed ``cog_channels`` (``cog_mode="channels"``).
-    ``aux_source(step)`` returns the predicted goal angle (e.g. from the policy agent's last
-    output); without it the trace's predictions are None.
+    ``aux_source(step)`` returns the predicted goal angle; with :class:`nue.policy.agent.PolicyAgent`
+    (``on_step`` runs right after ``act``) pass ``aux_source=lambda s: agent.last_aux``. Without
+    it the trace's predictions are None.
     """
 
     def __init__(self, rgb_stride: int = 2, cog_mode: str = "pca", cog_channels: Sequence[int] = (0, 1, 2),
