@@ -83,21 +83,31 @@ class OnlineNeRF:
         self.device = torch.device(device if device is not None else self.config.device)
         self.pixel_rays = PixelRays(self.camera, self.device)
         self.field = self._make_field().to(self.device)
+        self._zero_keys = set(getattr(self.field, "zero_init_keys", ()))
         if init_state is None:
             with torch.random.fork_rng(devices=[]):
                 torch.manual_seed(self.config.init_seed)
                 init_state = self._make_field().state_dict()
-        full = {k: v.detach().clone().cpu() for k, v in init_state.items()}
-        for key in getattr(self.field, "zero_init_keys", ()):
-            full.setdefault(key, torch.zeros_like(self.field.state_dict()[key], device="cpu"))
-        self._init_state = full
-        try:
-            self.field.load_state_dict(self._init_state)
-        except RuntimeError as e:
-            raise CheckpointError("memory init", f"stored NeRF initialisation does not fit the field config: {e}") from None
+        self._init_state = {k: v.detach().clone().cpu() for k, v in init_state.items() if k not in self._zero_keys}
+        self._load_initial_weights()
         rows, cols = map_pixels(self.camera, self.config.map_height, self.config.map_width)
         self._map_pixels = self._flat_pixels(rows, cols)
         self.reset(0)
+
+    def _load_initial_weights(self) -> None:
+        try:
+            missing, unexpected = self.field.load_state_dict(self._init_state, strict=False)
+        except RuntimeError as e:
+            raise CheckpointError("memory init", f"stored NeRF initialisation does not fit the field config: {e}") from None
+        if unexpected or set(missing) - self._zero_keys:
+            raise CheckpointError(
+                "memory init",
+                f"stored NeRF initialisation does not fit the field config (missing {sorted(set(missing) - self._zero_keys)}, "
+                f"unexpected {sorted(unexpected)})",
+            )
+        with torch.no_grad():
+            for key in self._zero_keys:  # parameters that start at zero by definition
+                getattr(self.field, key).zero_()
 
     def _make_field(self) -> torch.nn.Module:
         if self.config.field_type == "grid":
@@ -108,8 +118,7 @@ class OnlineNeRF:
     def initial_state(self) -> dict[str, torch.Tensor]:
         """The fixed initial weights every ``reset`` restores (CPU copies; store them with the policy).
         Parameters that start at zero by definition (the voxel grid's table) are left out."""
-        skip = set(getattr(self.field, "zero_init_keys", ()))
-        return {k: v.clone() for k, v in self._init_state.items() if k not in skip}
+        return {k: v.clone() for k, v in self._init_state.items()}
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         """The field's current weights."""
@@ -118,7 +127,7 @@ class OnlineNeRF:
     def reset(self, seed: int = 0, start_pose=None, floor_z: float = 0.0) -> None:
         """Start an episode: the initial weights, a fresh optimiser, an empty replay; ``seed`` drives ray
         sampling only. The episode frame is fixed at ``start_pose`` or else at the first pose seen."""
-        self.field.load_state_dict(self._init_state)
+        self._load_initial_weights()
         if isinstance(self.field, GridField):
             self.optimizers = [
                 torch.optim.Adam(self.field.dense_parameters(), lr=self.config.lr),
