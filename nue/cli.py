@@ -6,6 +6,7 @@ with status 2, without a traceback.
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 from typing import Optional
@@ -151,6 +152,59 @@ def train_cmd(
     res = train(cfg, resume=resume)
     typer.echo(f"{res.step} steps ({res.steps_this_call} in this call, {res.elapsed_s / 60:.1f} min); "
                f"best checkpoint: {res.best}")
+
+
+@app.command("eval")
+def eval_cmd(
+    method: list[str] = typer.Option(..., "--checkpoint", "-c", help="Checkpoint path, name=path, or 'expert'; repeatable."),
+    out: Path = typer.Option(Path("results/records.jsonl"), help="JSON-lines file the records are appended to."),
+    episodes_dir: Path = typer.Option(Path("episodes/val"), help="Folder with one episode file per house."),
+    scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the houses are (generated if missing)."),
+    task: str = typer.Option("paper", help="Task preset."),
+    seed: int = typer.Option(0, help="Base seed."),
+    workers: int = typer.Option(1, help="Parallel local worker processes."),
+    ray_address: Optional[str] = typer.Option(None, help="Run episodes as tasks on this Ray cluster."),
+    device: str = typer.Option("cpu", help="cpu or cuda."),
+    swap_maps: bool = typer.Option(False, help="Feed the maps of another episode (control)."),
+    max_episodes: int = typer.Option(0, help="First N episodes per house only (0 = all)."),
+    max_steps: int = typer.Option(0, help="Override the step limit (smoke runs only; 0 = the preset's)."),
+):
+    """Evaluate checkpoints on the fixed validation episodes (resumes if rerun)."""
+    from nue.evaluate.metrics import aggregate, format_table
+    from nue.evaluate.report import load_records
+    from nue.evaluate.runner import EvalConfig, run_eval
+
+    cfg = EvalConfig(episodes_dir=str(episodes_dir), scenes_root=str(scenes_root), task=task, seed=seed,
+                     device=device, swap_maps=swap_maps, max_episodes=max_episodes, max_steps=max_steps)
+    run_eval(method, out, cfg, workers=workers, ray_address=ray_address)
+    records = load_records(out)
+    for name in sorted({r.method for r in records}):
+        typer.echo(f"## {name}\n" + format_table(aggregate([r for r in records if r.method == name])))
+
+
+@app.command("report")
+def report_cmd(
+    records: list[Path] = typer.Argument(..., help="Record files (JSON lines) from `nue eval`."),
+    out: Path = typer.Option(Path("results/report"), help="Folder for table.md/.csv/.tex and coverage.png."),
+    results_md: Optional[Path] = typer.Option(None, help="Also write this RESULTS.md."),
+    command: str = typer.Option("", help="The evaluation command, recorded in RESULTS.md."),
+):
+    """Table I (SR / SPL / DTS per difficulty, CIs, paired differences to NUE) and coverage."""
+    import json
+    import platform
+
+    from nue.evaluate.report import load_records, render_results_md, write_report
+
+    recs = load_records(*records)
+    paths = write_report(recs, out)
+    typer.echo((out / "table.md").read_text() if (out / "table.md").is_file() else "")
+    if results_md:
+        meta_path = results_md.with_suffix(".meta.json")
+        meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {
+            "command": command, "date": "", "commit": "", "machine": f"{platform.machine()}, {os.cpu_count()} CPUs"}
+        results_md.write_text(render_results_md(recs, meta))
+        typer.echo(f"wrote {results_md}")
+    typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
 
 
 @app.command("demo")

@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 
 from nue.errors import CheckpointError, DataError
-from nue.train.checkpoint import git_commit, load_checkpoint, save_checkpoint
+from nue.train.checkpoint import load_checkpoint, policy_meta, save_checkpoint
 from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler
 
 
@@ -164,7 +164,6 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     from tqdm import tqdm
 
     from nue.nerf.config import MemoryConfig
-    from nue.nerf.online import OnlineNeRF
     from nue.policy import build_model
     from nue.policy.config import get_model_config
     from nue.sim.task import get_task
@@ -214,17 +213,9 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
         sampler = BufferSampler(data, per_rank, rng, cfg.buffer_episodes, rank=0, world=1)
 
     memory_cfg = MemoryConfig.from_dict(data.manifest["memory"])
-    meta = {
-        "task": dataclasses.asdict(task),
-        "memory": data.manifest["memory"],
-        "memory_init": OnlineNeRF(memory_cfg, task.camera).initial_state(),
-        "model_config": model_cfg.to_dict(),
-        "manifest_hash": manifest_hash(data.manifest),
-        "scenes": data.manifest["scenes"],
-        "git_commit": git_commit(),
-        "train_config": dataclasses.asdict(cfg),
-        "data": {"episodes": data.n_episodes, "steps": len(data), "skipped": [str(p) for p, _ in data.skipped]},
-    }
+    meta = policy_meta(task, memory_cfg, model_cfg, data.manifest["scenes"], manifest_hash(data.manifest),
+                       dataclasses.asdict(cfg), {"episodes": data.n_episodes, "steps": len(data),
+                                                 "skipped": [str(p) for p, _ in data.skipped]})
     writer = None
     if rank == 0:
         from torch.utils.tensorboard import SummaryWriter

@@ -84,3 +84,23 @@ def check_compatible(ckpt: dict, path, task=None, memory=None, scenes: dict[str,
         trained = ckpt.get("scenes", {}).get(name)
         if trained is not None and trained != h:
             raise CheckpointError(path, f"scene {name} has content {h}, but the policy was trained on content {trained}")
+
+
+def policy_meta(task, memory_cfg, model_cfg, scenes: dict[str, str], manifest_hash: str = "",
+                train_config: dict | None = None, data: dict | None = None) -> dict:
+    """Everything a checkpoint carries besides weights (see the module docstring)."""
+    import dataclasses
+
+    from nue.nerf.online import OnlineNeRF
+
+    return {
+        "task": dataclasses.asdict(task),
+        "memory": memory_cfg.to_dict(),
+        "memory_init": OnlineNeRF(memory_cfg, task.camera).initial_state(),
+        "model_config": model_cfg.to_dict(),
+        "manifest_hash": manifest_hash,
+        "scenes": dict(scenes),
+        "git_commit": git_commit(),
+        "train_config": train_config or {},
+        "data": data or {},
+    }

@@ -1,0 +1,234 @@
+"""``nue eval``: run policies (or the expert) on the fixed validation episodes, one JSON line per episode.
+
+Every method runs the same episodes with the same per-episode seeds, through the shared agent loop,
+with its checkpoint's online NeRF memory (fixed initial weights from the checkpoint). Records are
+appended one line at a time (a single ``write`` + ``fsync``); rerunning the command skips the
+episodes already recorded, so a killed evaluation resumes. Local worker processes or Ray tasks, as
+in ``nue collect``. ``swap_maps`` feeds a policy the memory maps recorded in a *different* episode of
+the same house (a control that shows whether the memory is used).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from nue.errors import CheckpointError, DataError
+from nue.jobs import Job, run_jobs
+from nue.train.collect import episode_seed
+
+_CACHE: dict = {}
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """An evaluation run."""
+
+    episodes_dir: str = "episodes/val"
+    """Folder of episode files, one per house (``<house>.json``)."""
+    scenes_root: str = "data/scenes"
+    """Where the houses are (generated from their fixed seeds if missing)."""
+    split: str = "val"
+    """House split of the episode files (houses are regenerated from this split's seeds)."""
+    task: str = "paper"
+    """Task preset; a checkpoint trained for another preset is refused."""
+    seed: int = 0
+    """Base seed; each episode's seed is derived from it and the episode's key."""
+    device: str = "cpu"
+    """Device of policy and memory in the workers."""
+    coverage: bool = True
+    """Record the seen floor area after every step (``extra['coverage']``)."""
+    swap_maps: bool = False
+    """Feed the policy the maps of another episode of the same house (control experiment)."""
+    max_episodes: int = 0
+    """Use only the first N episodes of each house (0 = all)."""
+    max_steps: int = 0
+    """Override the preset's step limit (0 = keep it); for smoke runs only — records are not comparable."""
+
+
+def parse_method(spec: str) -> tuple[str, str | None]:
+    """``name=path``, ``path`` (name from the checkpoint's model config) or ``expert``."""
+    if spec == "expert":
+        return "expert", None
+    if "=" in spec:
+        name, path = spec.split("=", 1)
+        return name, path
+    from nue.train.checkpoint import load_checkpoint
+
+    return load_checkpoint(spec)["model_config"]["name"], spec
+
+
+def plan_eval(methods: list[str], cfg: EvalConfig) -> list[Job]:
+    from nue.scene.generator import ensure_house
+    from nue.scene.scene import Scene
+    from nue.sim.episodes import load_episodes
+
+    files = sorted(Path(cfg.episodes_dir).glob("*.json"))
+    if not files:
+        raise DataError(cfg.episodes_dir, "no episode files (*.json)")
+    parsed = [parse_method(m) for m in methods]
+    jobs = []
+    for f in files:
+        name = f.stem
+        try:
+            index = int(name.rsplit("_", 1)[1])
+            folder = ensure_house(cfg.split, index, cfg.scenes_root)
+        except (ValueError, IndexError):
+            folder = Path(cfg.scenes_root) / name
+        scene = Scene.load(folder)
+        eps = load_episodes(f, scene, cfg.task)
+        if cfg.max_episodes:
+            eps = eps[: cfg.max_episodes]
+        for i, ep in enumerate(eps):
+            other = eps[(i + 1) % len(eps)] if cfg.swap_maps else None
+            for method, ckpt in parsed:
+                key = f"{method}{'+swap' if cfg.swap_maps else ''}/{scene.name}/{ep.episode_id}"
+                jobs.append(Job(key, {
+                    "method": method + ("+swap" if cfg.swap_maps else ""), "checkpoint": ckpt, "scene": str(folder),
+                    "episode": asdict(ep), "other": asdict(other) if other else None, "task": cfg.task,
+                    "seed": episode_seed(cfg.seed, scene.name, ep.episode_id), "device": cfg.device,
+                    "coverage": cfg.coverage, "max_steps": cfg.max_steps,
+                }))
+    return jobs
+
+
+def done_keys(path: Path) -> set[str]:
+    """Keys of the records in a JSONL file; a torn last line (killed mid-write) is cut off."""
+    if not path.is_file():
+        return set()
+    data = path.read_bytes()
+    if data and not data.endswith(b"\n"):
+        data = data[: data.rfind(b"\n") + 1]
+        with open(path, "r+b") as f:
+            f.truncate(len(data))
+    keys = set()
+    for line in data.decode().splitlines():
+        if line.strip():
+            keys.add(json.loads(line)["extra"]["key"])
+    return keys
+
+
+def append_record(path: Path, record: dict) -> None:
+    """Append one JSON line with a single write and fsync it."""
+    line = (json.dumps(record, sort_keys=True) + "\n").encode()
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        os.write(fd, line)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def run_eval(methods: list[str], out, cfg: EvalConfig, workers: int = 1, ray_address: str | None = None,
+             progress: bool = True) -> Path:
+    """Evaluate ``methods`` (checkpoint paths, ``name=path`` or ``expert``); records appended to ``out``."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    jobs = plan_eval(methods, cfg)
+    done = done_keys(out)
+    run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
+             is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="eval", progress=progress)
+    return out
+
+
+# ------------------------------------------------------------------------------------------- worker
+class MapReplay:
+    """A memory that ignores the current episode and replays maps recorded in another one."""
+
+    def __init__(self, maps: list):
+        self.maps = maps
+
+    def reset(self, seed, start_pose, floor_z) -> None:
+        self.t = 0
+
+    def render_maps(self, pose, depth, floor_z):
+        m = self.maps[min(self.t, len(self.maps) - 1)]
+        self.t += 1
+        return m
+
+    def step(self, rgb, depth, pose, floor_z) -> None:
+        pass
+
+
+def _env(payload):
+    from nue.scene.navgrid import NavGrid
+    from nue.scene.scene import Scene
+    from nue.sim.env import ImageNavEnv
+    from nue.sim.renderer import Renderer
+    from nue.sim.task import get_task
+
+    key = ("env", payload["scene"], payload["task"], payload.get("max_steps", 0))
+    if key not in _CACHE:
+        task = get_task(payload["task"])
+        if payload.get("max_steps"):
+            task = dataclasses.replace(task, max_steps=payload["max_steps"])
+        scene = Scene.load(payload["scene"])
+        _CACHE[key] = ImageNavEnv(scene, task, navgrid=NavGrid.from_scene(scene), renderer=Renderer(scene, task.camera))
+    return _CACHE[key]
+
+
+def _policy(payload, env):
+    from nue.nerf.config import MemoryConfig
+    from nue.nerf.online import OnlineNeRF
+    from nue.train.checkpoint import check_compatible, load_policy
+
+    key = ("policy", payload["checkpoint"], payload["device"])
+    if key not in _CACHE:
+        model, ckpt = load_policy(payload["checkpoint"], payload["device"])
+        memory = None
+        if model.config.uses_memory_maps:
+            mcfg = MemoryConfig.from_dict(ckpt["memory"])
+            memory = OnlineNeRF(mcfg, env.task.camera, init_state=ckpt["memory_init"], device=payload["device"])
+        _CACHE[key] = (model, ckpt, memory)
+    model, ckpt, memory = _CACHE[key]
+    check_compatible(ckpt, payload["checkpoint"], task=env.task, scenes={env.scene.name: env.scene.content_hash})
+    return model, ckpt, memory
+
+
+def eval_episode(job: Job) -> dict:
+    """Worker: one episode of one method; returns its record as a dict."""
+    from nue.evaluate.coverage import CoverageTracker
+    from nue.policy.agent import PolicyAgent
+    from nue.rollout import ExpertAgent, run_episode
+    from nue.sim.episodes import Episode
+
+    p = job.payload
+    env = _env(p)
+    episode = Episode(**{k: tuple(v) if isinstance(v, list) else v for k, v in p["episode"].items()})
+    extra = {"key": job.key, "seed": p["seed"], "checkpoint": p["checkpoint"]}
+    if p["checkpoint"] is None:
+        agent, memory = ExpertAgent(), None
+    else:
+        model, ckpt, memory = _policy(p, env)
+        agent = PolicyAgent(model, greedy=env.task.greedy, device=p["device"])
+        extra["git_commit"] = ckpt.get("git_commit", "")
+        if p.get("other") and memory is not None:
+            memory = MapReplay(_record_maps(env, memory, p))
+    tracker = CoverageTracker(env.task.camera, env.navgrid, env.floor_z) if p["coverage"] else None
+    t0 = time.perf_counter()
+    record = run_episode(env, agent, episode=episode, memory=memory, seed=p["seed"], on_step=tracker,
+                         method=p["method"])
+    extra["wall_time"] = time.perf_counter() - t0
+    if tracker is not None:
+        extra["coverage"] = [round(float(a), 3) for a in tracker.areas]
+    d = record.to_dict()
+    d["extra"] = {**d["extra"], **extra}
+    d["wall_time"] = extra["wall_time"]
+    return d
+
+
+def _record_maps(env, memory, p) -> list:
+    """Maps the memory renders along the expert's run of the *other* episode (for ``swap_maps``)."""
+    from nue.rollout import ExpertAgent, run_episode
+    from nue.sim.episodes import Episode
+
+    other = Episode(**{k: tuple(v) if isinstance(v, list) else v for k, v in p["other"].items()})
+    maps: list = []
+    run_episode(env, ExpertAgent(), episode=other, memory=memory, seed=p["seed"], on_step=lambda s: maps.append(s.maps))
+    if not maps:
+        raise CheckpointError(p["checkpoint"], "swap_maps: the other episode produced no maps")
+    return maps
