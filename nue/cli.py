@@ -142,13 +142,32 @@ def train_cmd(
     seed: int = typer.Option(0, help="Seed."),
     device: str = typer.Option("cpu", help="cpu or cuda."),
     resume: bool = typer.Option(False, help="Continue from OUT/last.pt."),
+    dagger_rounds: int = typer.Option(0, help="DAgger rounds after behaviour cloning (0 = plain BC)."),
+    dagger_steps: int = typer.Option(1000, help="Optimiser steps per DAgger round."),
+    dagger_beta: float = typer.Option(0.5, help="Expert-action probability in round r is beta ** r."),
+    scenes_root: Path = typer.Option(Path("data/scenes"), help="DAgger: where the training houses are."),
+    scene: list[Path] = typer.Option([], help="DAgger: the collection's scene folders, if not generated houses."),
+    workers: int = typer.Option(1, help="DAgger: parallel rollout workers."),
+    ray_address: Optional[str] = typer.Option(None, help="DAgger: run rollouts on this Ray cluster."),
 ):
-    """Behaviour cloning (+ auxiliary goal-angle loss) on collected demonstrations."""
+    """Behaviour cloning (+ auxiliary goal-angle loss) on collected demonstrations, optionally + DAgger."""
+    import json
+
     from nue.train.bc import TrainConfig, train
 
     cfg = TrainConfig(data=str(data), out=str(out), model=model, steps=steps, batch_size=batch_size, lr=lr,
                       aux_weight=aux_weight, time_budget_s=60 * time_budget, eval_every=eval_every, seed=seed,
                       device=device)
+    if dagger_rounds > 0:
+        from nue.train.dagger import DaggerConfig, collect_config_from_manifest, run_dagger
+
+        manifest = json.loads((data / "manifest.json").read_text())
+        rounds = run_dagger(cfg, collect_config_from_manifest(manifest, scene, device),
+                            DaggerConfig(rounds=dagger_rounds, beta0=dagger_beta, steps_per_round=dagger_steps),
+                            scenes_root, workers=workers, ray_address=ray_address)
+        (out / "dagger.json").write_text(json.dumps(rounds, indent=1, default=str) + "\n")
+        typer.echo(f"DAgger: {len(rounds) - 1} rounds; final checkpoint {rounds[-1]['best']}")
+        return
     res = train(cfg, resume=resume)
     typer.echo(f"{res.step} steps ({res.steps_this_call} in this call, {res.elapsed_s / 60:.1f} min); "
                f"best checkpoint: {res.best}")

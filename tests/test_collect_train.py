@@ -221,3 +221,29 @@ def test_checkpoint_embeds_presets_and_refuses_mismatches(demos, tmp_path):
         check_compatible(ckpt, res.best, memory=get_memory("authors"))
     with pytest.raises(CheckpointError, match="scene room_a has content 0000"):
         check_compatible(ckpt, res.best, scenes={"room_a": "0000000000000000"})
+
+
+def test_dagger_round_collects_policy_rollouts_labelled_by_the_expert(demos, houses, tmp_path):
+    import json
+
+    res = _cli("train", "--data", demos, "--out", tmp_path / "run", "--steps", 4, "--batch-size", 8, "--eval-every", 4,
+               "--dagger-rounds", 1, "--dagger-steps", 2, "--scene", houses[0], "--scene", houses[1],
+               "--scenes-root", tmp_path / "scenes")
+    assert res.returncode == 0, res.stderr[-2000:]
+    rounds = json.loads((tmp_path / "run" / "dagger.json").read_text())
+    assert [r["round"] for r in rounds] == [0, 1] and rounds[1]["beta"] == 0.5
+    dagger_dir = demos.parent / "demos_dagger_r1"
+    manifest = json.loads((dagger_dir / "manifest.json").read_text())
+    assert manifest["agent"]["kind"] == "dagger"
+    files = _files(dagger_dir)
+    assert len(files) == 6 and all(k.startswith("train/") for k in files)
+    mixed = 0
+    for path in files.values():
+        arrays, meta = read_episode_file(path)
+        mixed += int((arrays["action"] != arrays["executed"]).sum())
+        expert_steps = read_episode_file(demos / path.relative_to(dagger_dir))[1]["steps"]
+        assert meta["steps"] <= 3 * expert_steps + 200  # policy capped at 3x, then the expert finishes
+    assert mixed > 0  # some executed actions were the policy's, labelled with the expert's
+    from nue.train.checkpoint import load_checkpoint
+
+    assert load_checkpoint(tmp_path / "run" / "round_1" / "last.pt")["step"] == 2

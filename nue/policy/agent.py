@@ -51,11 +51,14 @@ class PolicyAgent:
 class MixedAgent:
     """DAgger's rollout policy: with probability ``beta`` the expert's action, else the policy's.
 
-    ``last_expert_action`` always holds the expert's label for the current state.
+    ``last_expert_action`` always holds the expert's label for the current state. After
+    ``policy_steps`` steps (e.g. 3x the expert's step count for the episode) the expert takes over
+    and finishes the episode.
     """
 
-    def __init__(self, policy: PolicyAgent, expert, beta: float):
+    def __init__(self, policy: PolicyAgent, expert, beta: float, policy_steps: int | None = None):
         self.policy, self.expert, self.beta = policy, expert, float(beta)
+        self.policy_steps = policy_steps
         self.rng = np.random.default_rng(0)
         self.last_expert_action: int | None = None
 
@@ -63,8 +66,12 @@ class MixedAgent:
         self.policy.reset(env, obs, seed)
         self.expert.reset(env, obs, seed)
         self.rng = np.random.default_rng(np.random.SeedSequence([seed, 2]))
+        self.t = 0
 
     def act(self, obs, maps) -> int:
         self.last_expert_action = int(self.expert.act(obs, maps))
-        policy_action = self.policy.act(obs, maps)
+        policy_action = self.policy.act(obs, maps)  # always run: keeps the recurrent state in step
+        self.t += 1
+        if self.policy_steps is not None and self.t > self.policy_steps:
+            return self.last_expert_action
         return self.last_expert_action if self.rng.random() < self.beta else policy_action

@@ -24,7 +24,7 @@ import torch.nn.functional as F
 
 from nue.errors import CheckpointError, DataError
 from nue.train.checkpoint import load_checkpoint, policy_meta, save_checkpoint
-from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler
+from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler, data_roots
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,9 @@ class TrainConfig:
     """Behaviour-cloning run."""
 
     data: str = "data/demos"
-    """Collection folder (``nue collect --out``)."""
+    """Collection folder (``nue collect --out``); several, comma-separated, are aggregated (DAgger)."""
+    init_from: str = ""
+    """Start from this checkpoint's weights (e.g. the previous DAgger round) instead of a fresh init."""
     out: str = "runs/nue"
     """Run folder: checkpoints and TensorBoard logs."""
     model: str = "nue"
@@ -178,8 +180,9 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     # -- data ------------------------------------------------------------------------------------
     data = DemoSet(cfg.data, "train", verify=cfg.verify_data)
     if data.n_episodes == 0:
-        raise DataError(Path(cfg.data) / "train", "no usable episode files")
-    heldout = DemoSet(cfg.data, "heldout", verify=cfg.verify_data) if (Path(cfg.data) / "heldout").is_dir() else None
+        raise DataError(cfg.data, "no usable episode files in train/")
+    first = data_roots(cfg.data)[0]
+    heldout = DemoSet(first, "heldout", verify=cfg.verify_data) if (first / "heldout").is_dir() else None
     task = get_task(data.manifest["task"])
     model_cfg = get_model_config(cfg.model).for_task(task)
     data.check_layout(model_cfg)
@@ -188,6 +191,11 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     # -- model, optimiser, schedule ----------------------------------------------------------------
     torch.manual_seed(cfg.seed)
     model = build_model(model_cfg).to(device)
+    if cfg.init_from:
+        init = load_checkpoint(cfg.init_from)
+        if init["model_config"] != model_cfg.to_dict():
+            raise CheckpointError(cfg.init_from, f"holds another model config than {model_cfg.name!r}")
+        model.load_state_dict(init["model_state"])
     net = SequenceForward(model)
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda" else None)

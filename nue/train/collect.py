@@ -51,6 +51,9 @@ class CollectConfig:
     """Seed of episode sampling and of each episode's memory / action sampling."""
     device: str = "cpu"
     """Device of the NeRF memory in the workers."""
+    agent: tuple = (("kind", "expert"),)
+    """Who drives: ``expert``, or ``dagger`` with ``checkpoint``, ``beta`` and ``expert_steps_from`` (the
+    expert collection whose step counts cap policy control at ``max_factor`` x; the expert finishes)."""
 
 
 def episode_seed(seed: int, scene: str, episode_id: str) -> int:
@@ -94,16 +97,24 @@ def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], d
         "heldout_per_bin": cfg.heldout_per_bin,
         "seed": cfg.seed,
     }
+    if dict(cfg.agent)["kind"] != "expert":
+        manifest["agent"] = dict(cfg.agent)
+    agent = dict(cfg.agent)
     jobs = []
     for s in scenes:
         for part, per_bin, seed in (("train", cfg.episodes_per_bin, cfg.seed), ("heldout", cfg.heldout_per_bin, cfg.seed + 7919)):
             if per_bin <= 0:
                 continue
             for ep in _episodes_for(s, task, per_bin, seed, scenes_root):
-                jobs.append(Job(f"{part}/{s.name}/{ep['episode_id']}", {
+                key = f"{part}/{s.name}/{ep['episode_id']}"
+                spec = dict(agent)
+                if spec["kind"] == "dagger":
+                    expert_file = episode_path(Path(spec["expert_steps_from"]), key)
+                    spec["expert_steps"] = read_header(expert_file)[0]["meta"]["steps"] if expert_file.is_file() else 0
+                jobs.append(Job(key, {
                     "scene": str(s.path), "episode": ep, "task": task.name, "memory": cfg.memory,
-                    "model": cfg.model, "seed": episode_seed(cfg.seed, s.name, f"{part}/{ep['episode_id']}"),
-                    "device": cfg.device, "agent": {"kind": "expert"},
+                    "model": cfg.model, "seed": episode_seed(cfg.seed, s.name, key), "device": cfg.device,
+                    "agent": spec,
                 }))
     return jobs, manifest
 
@@ -242,7 +253,8 @@ def _make_agent(spec: dict, env):
         key = ("policy", spec["checkpoint"])
         if key not in _CACHE:
             _CACHE[key] = load_policy(spec["checkpoint"])[0]
-        return MixedAgent(PolicyAgent(_CACHE[key], greedy=False), ExpertAgent(), spec["beta"])
+        limit = int(spec.get("max_factor", 3) * spec["expert_steps"]) if spec.get("expert_steps") else None
+        return MixedAgent(PolicyAgent(_CACHE[key], greedy=False), ExpertAgent(), spec["beta"], policy_steps=limit)
     raise ValueError(f"unknown agent kind {spec['kind']!r}")
 
 

@@ -35,16 +35,39 @@ class Batch:
     """(T, B) bool for sequences: True where an episode starts."""
 
 
-class DemoSet:
-    """The episodes of one part (``train`` or ``heldout``) of a collection folder."""
+_SAME = ("task", "memory", "model_layout")
+"""Manifest entries that must agree between aggregated collections (e.g. expert + DAgger rounds)."""
 
-    def __init__(self, root, part: str = "train", verify: bool = True, max_episodes: int | None = None):
-        self.root = Path(root)
-        manifest = self.root / "manifest.json"
-        if not manifest.is_file():
-            raise DataError(manifest, "no manifest: not a demonstration folder (run `nue collect` first)")
-        self.manifest = json.loads(manifest.read_text())
-        files = sorted((self.root / part).glob("*/*.nue"))
+
+def data_roots(spec) -> list[Path]:
+    """Collection folders from a path, a comma-separated string or a sequence."""
+    if isinstance(spec, (str, Path)):
+        return [Path(p) for p in str(spec).split(",") if p]
+    return [Path(p) for p in spec]
+
+
+class DemoSet:
+    """The episodes of one part (``train`` or ``heldout``) of one or more collection folders.
+
+    Several folders (expert data + DAgger rounds) are aggregated; their task, memory and input
+    layout must agree. ``manifest`` is the first folder's.
+    """
+
+    def __init__(self, roots, part: str = "train", verify: bool = True, max_episodes: int | None = None):
+        roots = data_roots(roots)
+        self.root = roots[0]
+        manifests = []
+        for root in roots:
+            manifest = root / "manifest.json"
+            if not manifest.is_file():
+                raise DataError(manifest, "no manifest: not a demonstration folder (run `nue collect` first)")
+            manifests.append(json.loads(manifest.read_text()))
+            for key in _SAME:
+                if manifests[-1].get(key) != manifests[0].get(key):
+                    raise DataError(manifest, f"{key} differs from {roots[0] / 'manifest.json'}; cannot aggregate")
+        self.manifest = manifests[0]
+        self.manifests = manifests
+        files = [f for root in roots for f in sorted((root / part).glob("*/*.nue"))]
         if max_episodes is not None:
             files = files[:max_episodes]
         self.episodes: list[dict[str, np.ndarray]] = []
