@@ -232,11 +232,15 @@ def demo(
     house: int = typer.Option(0, help="Validation house index (0-13)."),
     task: str = typer.Option("paper", help="Task preset."),
     seed: int = typer.Option(0, help="Episode seed."),
+    checkpoint: Optional[Path] = typer.Option(None, help="Policy checkpoint (default: checkpoints/nue.pt if present, else the expert)."),
+    expert: bool = typer.Option(False, help="Run the geodesic expert even if a checkpoint exists."),
+    max_steps: int = typer.Option(0, help="Override the step limit (quick runs; 0 = the preset's)."),
 ):
     """Run the agent on one episode per difficulty in a validation house; write figures and a table."""
     from nue.demo import run_demo
 
-    table = run_demo(out, house=house, task_name=task, seed=seed)
+    table = run_demo(out, house=house, task_name=task, seed=seed, checkpoint=checkpoint, max_steps=max_steps,
+                     use_default_checkpoint=not expert)
     typer.echo(table)
     typer.echo(f"figures and records in {out}/")
 

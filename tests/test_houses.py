@@ -58,10 +58,13 @@ def test_scenes_generate_cli_makes_14_loadable_val_scenes(tmp_path):
 
 
 def test_demo_writes_figures_and_table(tmp_path):
-    res = subprocess.run([sys.executable, "-m", "nue.cli", "demo", "--out", str(tmp_path / "demo")],
+    res = subprocess.run([sys.executable, "-m", "nue.cli", "demo", "--out", str(tmp_path / "demo"), "--max-steps", "60"],
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
-    for name in ("topdown.png", "frames_easy.png", "frames_medium.png", "frames_hard.png", "metrics.md", "records.jsonl"):
+    names = ["topdown.png", "metrics.md", "records.jsonl"]
+    names += [f"{kind}_{d}.{ext}" for d in ("easy", "medium", "hard")
+              for kind, ext in (("frames", "png"), ("fig6", "png"), ("episode", "gif"))]
+    for name in names:
         assert (tmp_path / "demo" / name).stat().st_size > 0, name
     assert "| total | 3 |" in res.stdout
     assert (tmp_path / "scenes" / "val_00" / "mesh_z_up.obj").is_file()
