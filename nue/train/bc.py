@@ -87,11 +87,17 @@ def _dist():
     return (torch.distributed.get_rank() if world > 1 else 0), world
 
 
-def lr_factor(step: int, cfg: TrainConfig) -> float:
-    """Warm-up then cosine: the learning-rate multiplier at ``step``."""
+def lr_factor(step: int, cfg: TrainConfig, elapsed_s: float = 0.0) -> float:
+    """Warm-up then cosine: the learning-rate multiplier at ``step``.
+
+    With a time budget, the cosine follows whichever is further along, steps or time, so a run
+    stopped by its budget still ends at the low learning rate (not deterministic across machines).
+    """
     if step < cfg.warmup:
         return (step + 1) / cfg.warmup
     p = min(1.0, (step - cfg.warmup) / max(1, cfg.steps - cfg.warmup))
+    if cfg.time_budget_s > 0:
+        p = max(p, min(1.0, elapsed_s / cfg.time_budget_s))
     return cfg.final_lr_ratio + (1 - cfg.final_lr_ratio) * 0.5 * (1 + math.cos(math.pi * p))
 
 
@@ -200,7 +206,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda" else None)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_factor(s, cfg))
+    clock = {"elapsed": 0.0}
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_factor(s, cfg, clock["elapsed"]))
     rng = np.random.default_rng([cfg.seed, rank])
     step, best = 0, -1.0
     elapsed = 0.0
@@ -265,6 +272,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
         loss.backward()
         gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
         opt.step()
+        clock["elapsed"] = time.perf_counter() - t_start
         sched.step()
         step += 1
         samples_seen += batch.action.numel() * world
