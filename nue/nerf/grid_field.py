@@ -181,9 +181,10 @@ class RowAdam:
 
     def __init__(self, table: nn.Parameter, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
         self.table, self.lr, self.betas, self.eps = table, lr, betas, eps
-        self.exp_avg = torch.zeros_like(table, requires_grad=False)
-        self.exp_avg_sq = torch.zeros_like(table, requires_grad=False)
-        self.grad_sum = torch.zeros_like(table, requires_grad=False)
+        # fill_ writes every page now (zeros_like may map them lazily), so steps do not page-fault
+        self.exp_avg = torch.empty_like(table, requires_grad=False).fill_(0.0)
+        self.exp_avg_sq = torch.empty_like(table, requires_grad=False).fill_(0.0)
+        self.grad_sum = torch.empty_like(table, requires_grad=False).fill_(0.0)
         self.touched = torch.zeros(table.shape[0], dtype=torch.bool, device=table.device)
         self.steps = 0
 
