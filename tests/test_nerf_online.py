@@ -189,7 +189,9 @@ def test_learning_on_a_short_trajectory(frames):
         baseline = np.broadcast_to(gt[seen].mean(axis=0), gt.shape)
         gains.append((psnr(pred, gt, seen), psnr(baseline, gt, seen)))
     p_nerf, p_mean = np.mean(gains, axis=0)
-    assert p_nerf > p_mean + 4.0 and p_nerf > 18.0, (p_nerf, p_mean)
+    # Threshold: predicting each frame's mean colour scores ~16.5 dB here; the memory must beat it by
+    # 6 dB (4x less squared error) and reach 22 dB (measured: ~28.5 dB after 20 updates).
+    assert p_nerf > p_mean + 6.0 and p_nerf > 22.0, (p_nerf, p_mean)
 
 
 def test_paper_field_learns_too(frames):
