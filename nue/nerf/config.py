@@ -109,20 +109,20 @@ MEMORY_PRESETS: dict[str, MemoryConfig] = {
     # Our default (benchmarks/README.md, "NeRF memory", has the measurements behind each choice): a
     # voxel-grid field (local parameters: never-sampled space keeps near-zero density, so with
     # T_{N+1} beta_max^2 it renders as uncertain), 8 samples in +-0.3 m around the observed surface,
-    # 1024 rays per step, maps at 45 x 60.
+    # 2 iterations of 512 rays per step (a quarter from the newest frame), maps at 45 x 60.
     "fast": MemoryConfig(
         name="fast",
         field_type="grid",
         sampler=SamplerConfig(band=0.3),
-        train_rays=1024,
+        train_rays=512,
         train_samples=8,
         render_samples=8,
         map_height=45,
         map_width=60,
-        iters_per_update=1,
+        iters_per_update=2,
         lr=2e-3,
         grid_lr=0.5,
-        newest_fraction=0.1,
+        newest_fraction=0.25,
         unseen_variance=1.0,
     ),
 }
