@@ -218,7 +218,7 @@ def report_cmd(
     paths = write_report(recs, out)
     typer.echo((out / "table.md").read_text() if (out / "table.md").is_file() else "")
     if results_md:
-        meta_path = results_md.with_suffix(".meta.json")
+        meta_path = results_md.parent / f"{results_md.stem}.meta.json"
         meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {
             "command": command, "date": "", "commit": "", "machine": f"{platform.machine()}, {os.cpu_count()} CPUs"}
         results_md.write_text(render_results_md(recs, meta))

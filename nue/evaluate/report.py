@@ -292,7 +292,7 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     rows = build_table(records)
     paper = paper_table()
     first = ["command", "date", "commit", "machine"]
-    keys = [k for k in first if k in meta] + sorted(k for k in meta if k not in first)
+    keys = [k for k in first if k in meta] + sorted(k for k in meta if k not in first and k != "discussion")
     info = "\n".join(f"| {k} | {'`%s`' % meta[k] if k == 'command' else meta[k]} |" for k in keys)
     parts = [
         "# Results\n",
@@ -315,4 +315,6 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     if curves:
         parts.append("## Exploration coverage (mean seen floor area, m²)\n\nEpisodes that ended keep their final "
                      f"area.\n\n{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
+    if meta.get("discussion"):
+        parts.append(f"## Discussion\n\n{meta['discussion']}\n")
     return "\n".join(parts)
