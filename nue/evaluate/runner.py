@@ -198,7 +198,7 @@ def eval_episode(job: Job) -> dict:
 
     p = job.payload
     env = _env(p)
-    episode = Episode(**{k: tuple(v) if isinstance(v, list) else v for k, v in p["episode"].items()})
+    episode = Episode.from_dict(p["episode"])
     extra = {"key": job.key, "seed": p["seed"], "checkpoint": p["checkpoint"]}
     if p["checkpoint"] is None:
         agent, memory = ExpertAgent(), None
@@ -226,7 +226,7 @@ def _record_maps(env, memory, p) -> list:
     from nue.rollout import ExpertAgent, run_episode
     from nue.sim.episodes import Episode
 
-    other = Episode(**{k: tuple(v) if isinstance(v, list) else v for k, v in p["other"].items()})
+    other = Episode.from_dict(p["other"])
     maps: list = []
     run_episode(env, ExpertAgent(), episode=other, memory=memory, seed=p["seed"], on_step=lambda s: maps.append(s.maps))
     if not maps:

@@ -62,6 +62,11 @@ class Episode:
         return np.array([self.goal_position[0], self.goal_position[1], yaw_from_quat(self.goal_rotation)])
 
     @classmethod
+    def from_dict(cls, d: dict) -> "Episode":
+        """Inverse of ``dataclasses.asdict`` (JSON lists become tuples)."""
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+    @classmethod
     def from_poses(cls, episode_id, scene, start_pose, goal_pose, z: float = 0.0, **kw) -> "Episode":
         return cls(
             episode_id=str(episode_id),
@@ -146,7 +151,7 @@ def load_episodes(
         episodes = [_from_authors(item, i, name, task, path) for i, item in enumerate(doc)]
     elif isinstance(doc, dict) and doc.get("format") == FORMAT:
         try:
-            episodes = [Episode(**{**e, **{k: tuple(e[k]) for k in _POSE_KEYS}}) for e in doc["episodes"]]
+            episodes = [Episode.from_dict(e) for e in doc["episodes"]]
         except (KeyError, TypeError) as exc:
             raise EpisodeError(path, f"malformed episode entry ({exc})") from None
     else:
@@ -167,7 +172,6 @@ def load_episodes(
     return episodes
 
 
-_POSE_KEYS = ("start_position", "start_rotation", "goal_position", "goal_rotation")
 
 
 def _from_authors(item, i: int, scene: str, task: TaskConfig, path) -> Episode:

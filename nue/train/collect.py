@@ -229,8 +229,7 @@ def collect_episode(job: Job):
 
     p = job.payload
     env, memory = _worker_objects(p)
-    ep_dict = {k: tuple(v) if isinstance(v, list) else v for k, v in p["episode"].items()}
-    episode = Episode(**ep_dict)
+    episode = Episode.from_dict(p["episode"])
     model_cfg = get_model_config(p["model"]).for_task(env.task)
     agent = _make_agent(p["agent"], env)
     rec = DemoRecorder(model_cfg, agent)
