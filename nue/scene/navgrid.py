@@ -118,21 +118,23 @@ class NavGrid:
             self._fields.popitem(last=False)
         return field
 
-    def lookup(self, field: np.ndarray, xy) -> float:
-        """Geodesic distance at world (x, y) from a distance field: min over the 3x3 cells around xy
-        of field + straight distance to that cell's centre (handles points near walls whose own cell
-        is blocked)."""
+    def lookup(self, field: np.ndarray, xy, max_ring: int = 10) -> float:
+        """Geodesic distance at world (x, y) from a distance field: min over the cells around xy of
+        field + straight distance to that cell's centre. Starts with the 3x3 cells and widens the
+        square ring by ring (up to ``max_ring`` cells) while none is reachable: a legal position next
+        to a wall can have all 3x3 planning cells blocked (a cell is free only if all its pixels are)."""
         xy = np.asarray(xy, dtype=np.float64)
         rc = self.cell_of(xy)
-        cells = rc + np.vstack([[0, 0], _NEIGHBOURS])
         m = self.free.shape[0]
-        cells = cells[np.all((cells >= 0) & (cells < m), axis=1)]
-        vals = field[cells[:, 0], cells[:, 1]]
-        ok = np.isfinite(vals)
-        if not ok.any():
-            return float("inf")
-        d = vals[ok] + np.linalg.norm(self.cell_centre(cells[ok]) - xy, axis=1)
-        return float(d.min())
+        for ring in range(1, max_ring + 1):
+            dr, dc = np.mgrid[-ring : ring + 1, -ring : ring + 1]
+            cells = rc + np.stack([dr.ravel(), dc.ravel()], axis=1)
+            cells = cells[np.all((cells >= 0) & (cells < m), axis=1)]
+            vals = field[cells[:, 0], cells[:, 1]]
+            ok = np.isfinite(vals)
+            if ok.any():
+                return float((vals[ok] + np.linalg.norm(self.cell_centre(cells[ok]) - xy, axis=1)).min())
+        return float("inf")
 
     def geodesic_distance(self, a_xy, b_xy) -> float:
         """Geodesic distance between two world points (metres); inf if unreachable."""
