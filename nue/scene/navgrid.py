@@ -120,10 +120,13 @@ class NavGrid:
 
     def lookup(self, field: np.ndarray, xy, max_ring: int = 10) -> float:
         """Geodesic distance at world (x, y) from a distance field: min over the cells around xy of
-        field + straight distance to that cell's centre. Starts with the 3x3 cells and widens the
-        square ring by ring (up to ``max_ring`` cells) while none is reachable: a legal position next
-        to a wall can have all 3x3 planning cells blocked (a cell is free only if all its pixels are)."""
+        field + straight distance to that cell's centre. Starts with the 3x3 cells; for a position
+        where the robot may stand it widens the square ring by ring (up to ``max_ring`` cells) while
+        none is reachable, since a legal position next to a wall can have all 3x3 planning cells
+        blocked (a cell is free only if all its pixels are). Points inside obstacles stay inf."""
         xy = np.asarray(xy, dtype=np.float64)
+        if not self.is_free(xy):
+            max_ring = 1
         rc = self.cell_of(xy)
         m = self.free.shape[0]
         for ring in range(1, max_ring + 1):
