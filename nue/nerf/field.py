@@ -78,7 +78,6 @@ class NeRFField(nn.Module):
         self.colour_out = nn.Linear(config.feature_dim, 3)
 
     def forward(self, x: torch.Tensor, d: torch.Tensor) -> FieldOutputs:
-        batch = x.shape[:-1]
         gx = self.pos_enc(x.reshape(-1, 3))
         h = gx
         for i, layer in enumerate(self.trunk):
@@ -90,19 +89,7 @@ class NeRFField(nn.Module):
         density = F.relu(out[:, 0])
         variance = F.softplus(out[:, 1]) + self.config.beta_min
         dir_part = self.colour_dir(self.dir_enc(d))
-        fc = self.colour_feature(out[:, 2:])
-        if d.dim() == x.dim() - 1:  # one direction per ray: broadcast over the ray's samples
-            fc = fc.view(*d.shape[:-1], -1, fc.shape[-1]) + dir_part.unsqueeze(-2)
-        else:
-            fc = fc + dir_part.reshape(fc.shape)
-        fc = F.relu(fc.reshape(-1, fc.shape[-1]), inplace=True)
-        rgb = torch.sigmoid(self.colour_out(fc))
-        return FieldOutputs(
-            density=density.reshape(batch),
-            rgb=rgb.reshape(*batch, 3),
-            variance=variance.reshape(batch),
-            feature=fc.reshape(*batch, -1),
-        )
+        return colour_head(self.colour_feature(out[:, 2:]), dir_part, x, d, self.colour_out, density, variance)
 
     def flops_per_point(self, samples_per_ray: int = 1) -> float:
         """GEMM FLOPs (2 per multiply-add) of one point query; the direction branch is shared by the
@@ -115,3 +102,26 @@ class NeRFField(nn.Module):
                 else:
                     per_point += m.in_features * m.out_features
         return 2.0 * (per_point + per_ray / max(samples_per_ray, 1))
+
+
+def colour_head(fc: torch.Tensor, dir_part: torch.Tensor, x: torch.Tensor, d: torch.Tensor, colour_out,
+                density: torch.Tensor, variance: torch.Tensor) -> FieldOutputs:
+    """Shared tail of both fields: f_c = ReLU(feature + direction term) (64-d), RGB = sigmoid(linear(f_c)).
+
+    ``fc``: (N, F) per point; ``dir_part``: (R, F) per ray (broadcast over the ray's samples when
+    ``d`` has one dim less than ``x``) or per point; ``density``, ``variance``: (N,). Outputs are
+    reshaped to ``x.shape[:-1]``.
+    """
+    batch = x.shape[:-1]
+    if d.dim() == x.dim() - 1:  # one direction per ray: broadcast over the ray's samples
+        fc = fc.view(*d.shape[:-1], -1, fc.shape[-1]) + dir_part.unsqueeze(-2)
+    else:
+        fc = fc + dir_part.reshape(fc.shape)
+    fc = F.relu(fc.reshape(-1, fc.shape[-1]), inplace=True)
+    rgb = torch.sigmoid(colour_out(fc))
+    return FieldOutputs(
+        density=density.reshape(batch),
+        rgb=rgb.reshape(*batch, 3),
+        variance=variance.reshape(batch),
+        feature=fc.reshape(*batch, -1),
+    )

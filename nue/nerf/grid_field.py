@@ -18,7 +18,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from nue.nerf.encoding import PositionalEncoding
-from nue.nerf.field import FieldOutputs
+from nue.nerf.field import FieldOutputs, colour_head
 
 
 @dataclass(frozen=True)
@@ -138,7 +138,6 @@ class GridField(nn.Module):
         return F.embedding_bag(rows, self.table, per_sample_weights=w, mode="sum", sparse=True)
 
     def forward(self, x: torch.Tensor, d: torch.Tensor) -> FieldOutputs:
-        batch = x.shape[:-1]
         raw = self.interpolate(x.reshape(-1, 3)) * self.channel_scale
         density = F.softplus(raw[:, 0] + self.density_shift)
         c = self.config
@@ -146,20 +145,8 @@ class GridField(nn.Module):
             variance = c.beta_min + (c.variance_max - c.beta_min) * torch.sigmoid(raw[:, 1] + self.variance_shift)
         else:
             variance = F.softplus(raw[:, 1] + self.variance_shift) + c.beta_min
-        fc = self.colour_code(raw[:, 2:])
         dir_part = self.colour_dir(self.dir_enc(d))
-        if d.dim() == x.dim() - 1:
-            fc = fc.view(*d.shape[:-1], -1, fc.shape[-1]) + dir_part.unsqueeze(-2)
-        else:
-            fc = fc + dir_part.reshape(fc.shape)
-        fc = F.relu(fc.reshape(-1, fc.shape[-1]), inplace=True)
-        rgb = torch.sigmoid(self.colour_out(fc))
-        return FieldOutputs(
-            density=density.reshape(batch),
-            rgb=rgb.reshape(*batch, 3),
-            variance=variance.reshape(batch),
-            feature=fc.reshape(*batch, -1),
-        )
+        return colour_head(self.colour_code(raw[:, 2:]), dir_part, x, d, self.colour_out, density, variance)
 
     def flops_per_point(self, samples_per_ray: int = 1) -> float:
         """FLOPs of one point query: trilinear read (8 corners x channels, multiply-add) + colour GEMMs;
