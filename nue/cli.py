@@ -137,14 +137,19 @@ def train_cmd(
     batch_size: int = typer.Option(64, help="Batch size (sequences for recurrent models)."),
     lr: float = typer.Option(1e-3, help="Peak learning rate."),
     aux_weight: float = typer.Option(0.5, help="Weight of the goal-angle loss."),
-    time_budget: float = typer.Option(0.0, help="Stop after this many minutes (0 = no limit)."),
+    time_budget: float = typer.Option(0.0, help="Stop after this many minutes (0 = no limit); with DAgger, per round with its rollouts included."),
     eval_every: int = typer.Option(250, help="Held-out evaluation / checkpoint interval."),
     seed: int = typer.Option(0, help="Seed."),
     device: str = typer.Option("cpu", help="cpu or cuda."),
     resume: bool = typer.Option(False, help="Continue from OUT/last.pt."),
+    precision: str = typer.Option("fp32", help="fp32, or bf16 (bfloat16 autocast: ~2x faster on CPUs with AVX512-BF16)."),
+    init_from: Optional[Path] = typer.Option(None, help="Start from this checkpoint's weights (fine-tuning)."),
+    warmup: int = typer.Option(100, help="Linear learning-rate warm-up steps."),
     dagger_rounds: int = typer.Option(0, help="DAgger rounds after behaviour cloning (0 = plain BC)."),
     dagger_steps: int = typer.Option(1000, help="Optimiser steps per DAgger round."),
     dagger_beta: float = typer.Option(0.5, help="Expert-action probability in round r is beta ** r."),
+    dagger_episodes_per_bin: int = typer.Option(0, help="DAgger: roll out the first k training episodes per bin per house (0 = all)."),
+    dagger_start: Optional[Path] = typer.Option(None, help="DAgger: skip round 0 and start from this checkpoint."),
     scenes_root: Path = typer.Option(Path("data/scenes"), help="DAgger: where the training houses are."),
     scene: list[Path] = typer.Option([], help="DAgger: the collection's scene folders, if not generated houses."),
     workers: int = typer.Option(1, help="DAgger: parallel rollout workers."),
@@ -157,13 +162,15 @@ def train_cmd(
 
     cfg = TrainConfig(data=str(data), out=str(out), model=model, steps=steps, batch_size=batch_size, lr=lr,
                       aux_weight=aux_weight, time_budget_s=60 * time_budget, eval_every=eval_every, seed=seed,
-                      device=device)
+                      device=device, precision=precision, init_from=str(init_from or ""), warmup=warmup)
     if dagger_rounds > 0:
         from nue.train.dagger import DaggerConfig, collect_config_from_manifest, run_dagger
 
         manifest = json.loads((data / "manifest.json").read_text())
         rounds = run_dagger(cfg, collect_config_from_manifest(manifest, scene, device),
-                            DaggerConfig(rounds=dagger_rounds, beta0=dagger_beta, steps_per_round=dagger_steps),
+                            DaggerConfig(rounds=dagger_rounds, beta0=dagger_beta, steps_per_round=dagger_steps,
+                                         episodes_per_bin=dagger_episodes_per_bin,
+                                         round_budget_s=60 * time_budget, start_from=str(dagger_start or "")),
                             scenes_root, workers=workers, ray_address=ray_address)
         (out / "dagger.json").write_text(json.dumps(rounds, indent=1, default=str) + "\n")
         typer.echo(f"DAgger: {len(rounds) - 1} rounds; final checkpoint {rounds[-1]['best']}")

@@ -152,7 +152,8 @@ def _fixed_batch_loss(model_cfg_name, state_dict, data_dir):
         return float(bc_loss(out, batch, class_weights(ds.action_counts(3), 0.5), 0.5)[0])
 
 
-def test_training_loss_falls(demos, tmp_path):
+@pytest.mark.parametrize("precision", ["fp32", "bf16"])
+def test_training_loss_falls(demos, tmp_path, precision):
     from nue.policy import build_model
     from nue.policy.config import get_model_config
     from nue.train.bc import TrainConfig, train
@@ -161,7 +162,7 @@ def test_training_loss_falls(demos, tmp_path):
     torch.manual_seed(0)
     init = build_model(get_model_config("nue")).state_dict()
     res = train(TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=60, batch_size=16, warmup=5,
-                            eval_every=30, lr=2e-3), progress=False)
+                            eval_every=30, lr=2e-3, precision=precision), progress=False)
     last = load_checkpoint(res.last)
     assert last["step"] == 60 and res.steps_this_call == 60
     before = _fixed_batch_loss("nue", init, demos)
@@ -232,7 +233,7 @@ def test_dagger_round_collects_policy_rollouts_labelled_by_the_expert(demos, hou
     assert res.returncode == 0, res.stderr[-2000:]
     rounds = json.loads((tmp_path / "run" / "dagger.json").read_text())
     assert [r["round"] for r in rounds] == [0, 1] and rounds[1]["beta"] == 0.5
-    dagger_dir = demos.parent / "demos_dagger_r1"
+    dagger_dir = tmp_path / "run" / "data_r1"
     manifest = json.loads((dagger_dir / "manifest.json").read_text())
     assert manifest["agent"]["kind"] == "dagger"
     files = _files(dagger_dir)
@@ -247,3 +248,33 @@ def test_dagger_round_collects_policy_rollouts_labelled_by_the_expert(demos, hou
     from nue.train.checkpoint import load_checkpoint
 
     assert load_checkpoint(tmp_path / "run" / "round_1" / "last.pt")["step"] == 2
+
+
+def test_dagger_from_a_given_checkpoint_counts_rollouts_against_the_round_budget(demos, houses, tmp_path):
+    import json
+
+    from nue.train.bc import TrainConfig, train
+    from nue.train.checkpoint import load_checkpoint
+
+    start = train(TrainConfig(data=str(demos), out=str(tmp_path / "bc"), steps=2, batch_size=4, eval_every=2),
+                  progress=False).best
+    res = _cli("train", "--data", demos, "--out", tmp_path / "run", "--batch-size", 8, "--eval-every", 1000,
+               "--dagger-rounds", 1, "--dagger-steps", 1000, "--dagger-start", start, "--dagger-episodes-per-bin", 1,
+               "--time-budget", 0.01, "--scene", houses[0], "--scene", houses[1], "--scenes-root", tmp_path / "scenes")
+    assert res.returncode == 0, res.stderr[-2000:]
+    rounds = json.loads((tmp_path / "run" / "dagger.json").read_text())
+    assert rounds[0]["given"] and rounds[0]["best"] == str(start) and not (tmp_path / "run" / "round_0").exists()
+    # the rollouts used up the 0.6 s budget: retraining got its 1 s floor, far fewer than 1000 steps
+    assert rounds[1]["rollout_seconds"] > 0.6 and 1 <= rounds[1]["train_steps"] < 1000
+    manifest = json.loads((tmp_path / "run" / "data_r1" / "manifest.json").read_text())
+    expert = json.loads((demos / "manifest.json").read_text())
+    assert manifest["memory"] == expert["memory"] and manifest["subsample_per_bin"] == 1
+    assert manifest["agent"]["checkpoint"] == str(start)
+    assert load_checkpoint(tmp_path / "run" / "round_1" / "best.pt")["model_config"]["name"] == "nue"
+
+
+def test_subsample_keeps_the_first_episodes_of_each_bin():
+    from nue.train.collect import _first_per_bin
+
+    eps = [{"difficulty": d, "episode_id": f"{d}_{i}"} for d in ("easy", "medium") for i in range(3)]
+    assert [e["episode_id"] for e in _first_per_bin(eps, 2)] == ["easy_0", "easy_1", "medium_0", "medium_1"]

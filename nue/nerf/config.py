@@ -128,10 +128,13 @@ MEMORY_PRESETS: dict[str, MemoryConfig] = {
 }
 
 
-def get_memory(name: str | MemoryConfig) -> MemoryConfig:
-    """Look up a memory preset by name (a MemoryConfig passes through)."""
+def get_memory(name: str | MemoryConfig | dict) -> MemoryConfig:
+    """Look up a memory preset by name; a MemoryConfig passes through, a dict (``to_dict()``, e.g. from a
+    manifest or checkpoint) is rebuilt exactly."""
     if isinstance(name, MemoryConfig):
         return name
+    if isinstance(name, dict):
+        return MemoryConfig.from_dict(name)
     try:
         return MEMORY_PRESETS[name]
     except KeyError:

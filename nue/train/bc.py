@@ -71,11 +71,34 @@ class TrainConfig:
     """Seed of the model initialisation and of batch sampling."""
     device: str = "cpu"
     """Training device."""
+    precision: str = "fp32"
+    """``fp32``, or ``bf16``: forward and backward under bfloat16 autocast (weights, optimiser and loss stay
+    float32). About 2x the samples/s on CPUs with AVX512-BF16 (``make bench``); the shipped checkpoints are fp32."""
     verify_data: bool = True
     """Check every episode file's checksums when opening the data (bad files are skipped)."""
 
+    def __post_init__(self) -> None:
+        if self.precision not in PRECISIONS:
+            from nue.errors import ConfigError
+
+            raise ConfigError("train config", f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
+
     def replace(self, **kw) -> "TrainConfig":
         return dataclasses.replace(self, **kw)
+
+
+PRECISIONS = ("fp32", "bf16")
+
+
+def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainConfig, device: torch.device):
+    """One training forward: (total, cross-entropy, angle L1 or None). Under ``bf16`` the network runs in
+    bfloat16 autocast and the loss is taken on its outputs cast back to float32."""
+    from nue.policy.base import PolicyOutput
+
+    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=cfg.precision == "bf16"):
+        out = net(batch.inp, model.initial_state(reset_t.shape[1], device), reset_t)
+    out = PolicyOutput(out.logits.float(), None if out.aux_angle is None else out.aux_angle.float(), out.state)
+    return bc_loss(out, batch, weights, cfg.aux_weight)
 
 
 def _dist():
@@ -266,8 +289,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
             eps, steps_ = drawn
             batch = data.batch(eps[None], steps_[None], model_cfg, device)
             reset_t = torch.ones(batch.action.shape, dtype=torch.bool, device=device)
-        out = net(batch.inp, model.initial_state(reset_t.shape[1], device), reset_t)
-        loss, ce, aux = bc_loss(out, batch, weights, cfg.aux_weight)
+        loss, ce, aux = forward_loss(net, model, batch, reset_t, weights, cfg, device)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)

@@ -33,8 +33,9 @@ class CollectConfig:
 
     task: str = "paper"
     """Task preset."""
-    memory: str = "fast"
-    """Memory (NeRF) preset, run online exactly as at test time."""
+    memory: str | dict = "fast"
+    """Memory (NeRF) preset name, or a full config dict (``MemoryConfig.to_dict()``, e.g. a manifest's), run
+    online exactly as at test time."""
     model: str = "nue"
     """Model preset whose input layout (frame size, map size, depth scale) the data is stored in."""
     split: str = "train"
@@ -47,6 +48,9 @@ class CollectConfig:
     """Training episodes per difficulty bin per house."""
     heldout_per_bin: int = 2
     """Held-out episodes per bin per house, for model selection (never the validation houses)."""
+    subsample_per_bin: int = 0
+    """Use only the first k of the ``episodes_per_bin`` training episodes of each bin (0 = all); DAgger
+    rounds revisit a subset of the expert collection's episodes this way."""
     seed: int = 0
     """Seed of episode sampling and of each episode's memory / action sampling."""
     device: str = "cpu"
@@ -97,6 +101,8 @@ def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], d
         "heldout_per_bin": cfg.heldout_per_bin,
         "seed": cfg.seed,
     }
+    if cfg.subsample_per_bin:
+        manifest["subsample_per_bin"] = cfg.subsample_per_bin
     if dict(cfg.agent)["kind"] != "expert":
         manifest["agent"] = dict(cfg.agent)
     agent = dict(cfg.agent)
@@ -105,18 +111,32 @@ def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], d
         for part, per_bin, seed in (("train", cfg.episodes_per_bin, cfg.seed), ("heldout", cfg.heldout_per_bin, cfg.seed + 7919)):
             if per_bin <= 0:
                 continue
-            for ep in _episodes_for(s, task, per_bin, seed, scenes_root):
+            episodes = _episodes_for(s, task, per_bin, seed, scenes_root)
+            if part == "train" and cfg.subsample_per_bin:
+                episodes = _first_per_bin(episodes, cfg.subsample_per_bin)
+            for ep in episodes:
                 key = f"{part}/{s.name}/{ep['episode_id']}"
                 spec = dict(agent)
                 if spec["kind"] == "dagger":
                     expert_file = episode_path(Path(spec["expert_steps_from"]), key)
                     spec["expert_steps"] = read_header(expert_file)[0]["meta"]["steps"] if expert_file.is_file() else 0
                 jobs.append(Job(key, {
-                    "scene": str(s.path), "episode": ep, "task": task.name, "memory": cfg.memory,
+                    "scene": str(s.path), "episode": ep, "task": task.name, "memory": memory.to_dict(),
                     "model": cfg.model, "seed": episode_seed(cfg.seed, s.name, key), "device": cfg.device,
                     "agent": spec,
                 }))
     return jobs, manifest
+
+
+def _first_per_bin(episodes: list[dict], k: int) -> list[dict]:
+    """The first ``k`` episodes of each difficulty bin, in the original order."""
+    seen: dict[str, int] = {}
+    kept = []
+    for ep in episodes:
+        seen[ep["difficulty"]] = seen.get(ep["difficulty"], 0) + 1
+        if seen[ep["difficulty"]] <= k:
+            kept.append(ep)
+    return kept
 
 
 def _episodes_for(scene, task, per_bin: int, seed: int, scenes_root: Path) -> list[dict]:
@@ -215,7 +235,7 @@ def _worker_objects(payload):
         nav = NavGrid.from_scene(scene)
         _CACHE[key] = ImageNavEnv(scene, task, navgrid=nav, renderer=Renderer(scene, task.camera))
     env = _CACHE[key]
-    mkey = ("memory", payload["memory"], payload["device"])
+    mkey = ("memory", json.dumps(payload["memory"], sort_keys=True), payload["device"])
     if mkey not in _CACHE:
         _CACHE[mkey] = OnlineNeRF(payload["memory"], env.task.camera, device=payload["device"])
     return env, _CACHE[mkey]

@@ -1,16 +1,20 @@
 """DAgger (beyond the paper): roll out the current policy (mixed with the expert's actions with
 probability beta), label every visited state with the expert's action, aggregate, retrain.
 
-Round 0 is behaviour cloning on the expert's demonstrations. Round r >= 1 collects the training
-episodes again with beta = beta0 ** r (the NeRF memory online, as always), caps policy control at
-``max_factor`` x the expert's step count for the episode (then the expert finishes it), and
-continues training from the previous round's weights on all data so far. Each round's collection
-and run folder are resumable like ``nue collect`` and ``nue train``.
+Round 0 is behaviour cloning on the expert's demonstrations (or a given checkpoint: ``start_from``).
+Round r >= 1 collects the training episodes again (all, or the first k per bin) with
+beta = beta0 ** r (the NeRF memory online, with the collection's own memory config), caps policy
+control at ``max_factor`` x the expert's step count for the episode (then the expert finishes it),
+and continues training from the previous round's weights on all data so far. With a time budget
+per round, the rollouts count against it: retraining gets what the collection left, so DAgger and
+plain behaviour cloning can be compared at equal compute. Each round's collection and run folder
+are resumable like ``nue collect`` and ``nue train``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +35,13 @@ class DaggerConfig:
     """Policy control stops at this multiple of the expert's step count; the expert finishes."""
     steps_per_round: int = 1000
     """Optimiser steps of each retraining round."""
+    episodes_per_bin: int = 0
+    """Roll out only the first k training episodes per bin per house in each round (0 = all of them)."""
+    round_budget_s: float = 0.0
+    """Wall-clock budget of each round r >= 1, rollouts included; retraining stops when it is spent
+    (0 = no limit: ``steps_per_round`` steps)."""
+    start_from: str = ""
+    """Skip round 0 and start from this checkpoint (e.g. a finished behaviour-cloning run)."""
 
 
 def run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: DaggerConfig, scenes_root,
@@ -39,22 +50,34 @@ def run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: Dagge
     out = Path(train_cfg.out)
     expert_data = train_cfg.data.split(",")[0]
     t0 = time.perf_counter()
-    res: TrainResult = train(train_cfg.replace(out=str(out / "round_0")), resume=True, progress=progress)
-    rounds = [{"round": 0, "best": str(res.best), "data": train_cfg.data, "seconds": time.perf_counter() - t0}]
+    if dagger.start_from:
+        best = Path(dagger.start_from)
+        rounds = [{"round": 0, "best": str(best), "data": train_cfg.data, "seconds": 0.0, "given": True}]
+    else:
+        best = train(train_cfg.replace(out=str(out / "round_0")), resume=True, progress=progress).best
+        rounds = [{"round": 0, "best": str(best), "data": train_cfg.data, "seconds": time.perf_counter() - t0}]
     roots = [train_cfg.data]
     for r in range(1, dagger.rounds + 1):
         t0 = time.perf_counter()
         beta = dagger.beta0**r
-        agent = (("kind", "dagger"), ("checkpoint", str(res.best)), ("beta", beta),
+        agent = (("kind", "dagger"), ("checkpoint", str(best)), ("beta", beta),
                  ("expert_steps_from", expert_data), ("max_factor", dagger.max_factor))
-        data_dir = Path(expert_data).parent / f"{Path(expert_data).name}_dagger_r{r}"
-        summary = collect(data_dir, dataclasses.replace(collect_cfg, agent=agent, heldout_per_bin=0), scenes_root,
-                          workers=workers, ray_address=ray_address, progress=progress)
+        data_dir = out / f"data_r{r}"
+        summary = collect(data_dir, dataclasses.replace(collect_cfg, agent=agent, heldout_per_bin=0,
+                                                        subsample_per_bin=dagger.episodes_per_bin),
+                          scenes_root, workers=workers, ray_address=ray_address, progress=progress)
+        timing = out / f"round_{r}_rollout.json"  # the first run's rollout time survives a resume
+        if not timing.is_file():
+            timing.write_text(json.dumps({"rollout_seconds": time.perf_counter() - t0}) + "\n")
+        rollout_s = json.loads(timing.read_text())["rollout_seconds"]
         roots.append(str(data_dir))
-        res = train(train_cfg.replace(data=",".join(roots), out=str(out / f"round_{r}"), init_from=str(res.best),
-                                      steps=dagger.steps_per_round, warmup=0), resume=True, progress=progress)
-        rounds.append({"round": r, "beta": beta, "best": str(res.best), "data": ",".join(roots),
-                       "collected": summary, "seconds": time.perf_counter() - t0})
+        budget = max(dagger.round_budget_s - rollout_s, 1.0) if dagger.round_budget_s > 0 else train_cfg.time_budget_s
+        res: TrainResult = train(train_cfg.replace(data=",".join(roots), out=str(out / f"round_{r}"),
+                                                   init_from=str(best), steps=dagger.steps_per_round, warmup=0,
+                                                   time_budget_s=budget), resume=True, progress=progress)
+        best = res.best
+        rounds.append({"round": r, "beta": beta, "best": str(best), "data": ",".join(roots), "collected": summary,
+                       "rollout_seconds": rollout_s, "train_steps": res.step, "seconds": time.perf_counter() - t0})
     return rounds
 
 
@@ -69,7 +92,7 @@ def collect_config_from_manifest(manifest: dict, scene_dirs=(), device: str = "c
 
             raise DataError("manifest.json", "scenes are not generated houses: pass their folders with --scene")
         houses = tuple(int(n[len(prefix):]) for n in names)
-    return CollectConfig(task=manifest["task"], memory=manifest["memory"]["name"], split=manifest["split"],
+    return CollectConfig(task=manifest["task"], memory=manifest["memory"], split=manifest["split"],
                          houses=houses, scene_dirs=tuple(str(d) for d in scene_dirs),
                          episodes_per_bin=manifest["episodes_per_bin"], heldout_per_bin=0, seed=manifest["seed"],
                          device=device)
