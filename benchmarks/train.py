@@ -1,9 +1,10 @@
-"""Training-throughput benchmark: samples/s of behaviour cloning at batch 64 on one CPU thread.
+"""Training-throughput benchmark: samples/s of behaviour cloning at batch 64 on CPU.
 
 Writes ``benchmarks/results/train.json``. Uses a synthetic collection in the real episode-file
 layout (random arrays, 20 episodes x 40 steps, page-cache hot), so it needs no collected data. Per
 model it times, side by side in one run: batch assembly alone (memory-mapped gather + float16 ->
-float32), forward + backward + AdamW alone on a fixed batch, and the whole training step.
+float32), forward + backward + AdamW alone on a fixed batch, and the whole training step, the
+last for each precision (fp32, bf16 autocast) on 1 and 2 torch threads, with bf16 / fp32 ratios.
 Target (issue 5): >= 400 samples/s.
 """
 
@@ -28,7 +29,8 @@ from nue.nerf.config import get_memory  # noqa: E402
 from nue.policy import build_model  # noqa: E402
 from nue.policy.config import get_model_config  # noqa: E402
 from nue.sim.task import get_task  # noqa: E402
-from nue.train.bc import bc_loss, class_weights  # noqa: E402
+from nue.train.bc import TrainConfig, class_weights, forward_loss  # noqa: E402
+from nue.train.bc import SequenceForward  # noqa: E402
 from nue.train.collect import data_layout  # noqa: E402
 from nue.train.dataset import BufferSampler, DemoSet  # noqa: E402
 from nue.train.episode_file import write_episode_file  # noqa: E402
@@ -68,7 +70,6 @@ def rate(fn, n: int) -> float:
 
 
 def main() -> None:
-    torch.set_num_threads(1)
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
         synthetic_collection(Path(tmp) / "demos")
@@ -87,19 +88,42 @@ def main() -> None:
 
             fixed = gather()
 
-            def compute(batch=None):
+            net = SequenceForward(model)
+            cpu = torch.device("cpu")
+
+            def compute(batch=None, precision="fp32"):
                 b = batch if batch is not None else fixed
-                out_ = model.forward_sequence(b.inp, None, torch.ones(b.action.shape, dtype=torch.bool))
-                loss = bc_loss(out_, b, w, 0.5)[0]
+                reset = torch.ones(b.action.shape, dtype=torch.bool)
+                loss = forward_loss(net, model, b, reset, w, TrainConfig(precision=precision), cpu)[0]
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
 
-            g, c, full = rate(gather, ITERS), rate(compute, ITERS), rate(lambda: compute(gather()), ITERS)
-            out[name] = {"gather_samples_per_s": g, "compute_samples_per_s": c, "train_samples_per_s": full,
-                         "gather_share_of_step": full / g, "target_samples_per_s": 400}
-            print(f"{name}: train {full:.0f} samples/s (gather alone {g:.0f}, fwd+bwd+AdamW alone {c:.0f})")
-    write_result("train", {"batch": BATCH, "threads": 1, "models": out})
+            torch.set_num_threads(1)
+            g, c = rate(gather, ITERS), rate(compute, ITERS)
+            res = {"gather_samples_per_s": g, "compute_samples_per_s": c, "target_samples_per_s": 400}
+            for threads in (1, 2):
+                torch.set_num_threads(threads)
+                for precision in ("fp32", "bf16"):
+                    res[f"train_samples_per_s_{precision}_{threads}t"] = rate(lambda: compute(gather(), precision), ITERS)
+                res[f"bf16_over_fp32_{threads}t"] = res[f"train_samples_per_s_bf16_{threads}t"] / res[f"train_samples_per_s_fp32_{threads}t"]
+            res["train_samples_per_s"] = res["train_samples_per_s_fp32_1t"]
+            res["gather_share_of_step"] = res["train_samples_per_s"] / g
+            res["best_samples_per_s"] = max(v for k, v in res.items() if k.startswith("train_samples_per_s_"))
+            out[name] = res
+            print(f"{name}: fp32 {res['train_samples_per_s_fp32_1t']:.0f} / {res['train_samples_per_s_fp32_2t']:.0f} "
+                  f"samples/s on 1 / 2 threads; bf16 {res['train_samples_per_s_bf16_1t']:.0f} / "
+                  f"{res['train_samples_per_s_bf16_2t']:.0f} (gather alone {g:.0f}, fp32 fwd+bwd+AdamW alone {c:.0f})")
+    write_result("train", {"batch": BATCH, "threads": [1, 2], "bf16_cpu": _bf16_flag(), "models": out})
+
+
+def _bf16_flag() -> bool:
+    """Whether this CPU has native bfloat16 (AVX512-BF16 or AMX); without it bf16 is emulated and slower."""
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+    return "avx512_bf16" in flags or "amx_bf16" in flags
 
 
 if __name__ == "__main__":
