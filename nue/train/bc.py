@@ -22,7 +22,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from nue.errors import CheckpointError, DataError
+from nue.errors import CheckpointError, ConfigError, DataError
 from nue.train.checkpoint import load_checkpoint, policy_meta, save_checkpoint
 from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler, data_roots
 
@@ -79,8 +79,6 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         if self.precision not in PRECISIONS:
-            from nue.errors import ConfigError
-
             raise ConfigError("train config", f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
 
     def replace(self, **kw) -> "TrainConfig":

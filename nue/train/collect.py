@@ -121,7 +121,7 @@ def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], d
                     expert_file = episode_path(Path(spec["expert_steps_from"]), key)
                     spec["expert_steps"] = read_header(expert_file)[0]["meta"]["steps"] if expert_file.is_file() else 0
                 jobs.append(Job(key, {
-                    "scene": str(s.path), "episode": ep, "task": task.name, "memory": memory.to_dict(),
+                    "scene": str(s.path), "episode": ep, "task": task.name, "memory": manifest["memory"],
                     "model": cfg.model, "seed": episode_seed(cfg.seed, s.name, key), "device": cfg.device,
                     "agent": spec,
                 }))
