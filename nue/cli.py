@@ -74,23 +74,28 @@ def expert(
     episodes: Path = typer.Option(..., help="Episode file (ours or the authors' format)."),
     task: str = typer.Option("paper", help="Task preset."),
     records: Optional[Path] = typer.Option(None, help="Write one JSON record per episode here."),
+    kind: str = typer.Option("geodesic", help="geodesic (shortest path) or explore (frontier exploration until "
+                             "the goal is in view, then geodesic)."),
 ):
-    """Run the geodesic expert on an episode file and print SR / SPL / DTS."""
+    """Run the geodesic (or exploring) expert on an episode file and print SR / SPL / DTS."""
     import json
 
     from nue.evaluate.metrics import aggregate, format_table
-    from nue.rollout import ExpertAgent, run_episode
+    from nue.rollout import EXPERT_KINDS, ExpertAgent, run_episode
     from nue.scene.navgrid import NavGrid
     from nue.scene.scene import Scene
     from nue.sim.env import ImageNavEnv
     from nue.sim.episodes import load_episodes
 
+    if kind not in EXPERT_KINDS:
+        raise typer.BadParameter(f"expected one of {', '.join(EXPERT_KINDS)}", param_hint="--kind")
     s = Scene.load(scene)
     nav = NavGrid.from_scene(s)
     eps = load_episodes(episodes, s, task, navgrid=nav)
     env = ImageNavEnv(s, task, eps, navgrid=nav)
-    agent = ExpertAgent()
-    recs = [run_episode(env, agent, episode_index=i, method="expert") for i in range(len(eps))]
+    agent = ExpertAgent(kind=kind)
+    method = "expert" if kind == "geodesic" else f"expert-{kind}"
+    recs = [run_episode(env, agent, episode_index=i, method=method) for i in range(len(eps))]
     if records:
         records.parent.mkdir(parents=True, exist_ok=True)
         records.write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs))
@@ -116,13 +121,19 @@ def collect_cmd(
     workers: int = typer.Option(1, help="Parallel local worker processes."),
     ray_address: Optional[str] = typer.Option(None, help="Run episodes as tasks on this Ray cluster."),
     device: str = typer.Option("cpu", help="Device of the NeRF memory."),
+    expert_kind: str = typer.Option("geodesic", "--expert", help="geodesic (knows the goal) or explore (frontiers "
+                                    "of its own seen map until the goal is in view, then geodesic)."),
+    noise: float = typer.Option(0.0, help="DART noise: probability that a random move is executed instead of the "
+                                "expert's; the label stays the expert's."),
+    memory_lag: int = typer.Option(0, help="Memory lag: frames join the NeRF this many steps late (0 = the preset's)."),
 ):
     """Collect expert demonstrations with the online NeRF memory (resumes if rerun)."""
     from nue.train.collect import CollectConfig, collect
 
     cfg = CollectConfig(task=task, memory=memory, model=model, houses=_ints(houses),
                         scene_dirs=tuple(str(p) for p in scene), episodes_per_bin=episodes_per_bin,
-                        heldout_per_bin=heldout_per_bin, seed=seed, device=device)
+                        heldout_per_bin=heldout_per_bin, seed=seed, device=device, expert=expert_kind, noise=noise,
+                        memory_lag=memory_lag)
     summary = collect(out, cfg, scenes_root, workers=workers, ray_address=ray_address)
     typer.echo(f"{summary['episodes']} episodes, {summary['steps']} steps, "
                f"{summary['bytes_per_step'] / 1024:.0f} KiB/step, expert SR {100 * summary['expert_success_rate']:.1f}% -> {out}")
@@ -142,7 +153,14 @@ def train_cmd(
     seed: int = typer.Option(0, help="Seed."),
     device: str = typer.Option("cpu", help="cpu or cuda."),
     resume: bool = typer.Option(False, help="Continue from OUT/last.pt."),
-    precision: str = typer.Option("fp32", help="fp32, or bf16 (bfloat16 autocast: ~2x faster on CPUs with AVX512-BF16)."),
+    precision: str = typer.Option("fp32", help="auto (bf16 where the CPU/GPU runs it natively, else fp32), fp32, or "
+                                  "bf16 (bfloat16 autocast: ~2x faster on CPUs with AVX512-BF16)."),
+    map_dropout: float = typer.Option(0.0, help="Probability per sample of replacing its memory maps by another sample's."),
+    select: str = typer.Option("accuracy", help="How best.pt is chosen: accuracy (held-out action accuracy) or "
+                               "closed_loop (the last snapshots run on --select-episodes; highest SR wins)."),
+    select_episodes: Path = typer.Option(Path("episodes/select"), help="Closed-loop selection episodes (training houses)."),
+    select_candidates: int = typer.Option(3, help="Closed-loop selection: how many of the last snapshots compete."),
+    select_workers: int = typer.Option(1, help="Closed-loop selection: worker processes."),
     init_from: Optional[Path] = typer.Option(None, help="Start from this checkpoint's weights (fine-tuning)."),
     warmup: int = typer.Option(100, help="Linear learning-rate warm-up steps."),
     dagger_rounds: int = typer.Option(0, help="DAgger rounds after behaviour cloning (0 = plain BC)."),
@@ -162,7 +180,9 @@ def train_cmd(
 
     cfg = TrainConfig(data=str(data), out=str(out), model=model, steps=steps, batch_size=batch_size, lr=lr,
                       aux_weight=aux_weight, time_budget_s=60 * time_budget, eval_every=eval_every, seed=seed,
-                      device=device, precision=precision, init_from=str(init_from or ""), warmup=warmup)
+                      device=device, precision=precision, init_from=str(init_from or ""), warmup=warmup,
+                      map_dropout=map_dropout, select=select, select_episodes=str(select_episodes),
+                      select_candidates=select_candidates, select_workers=select_workers)
     if dagger_rounds > 0:
         from nue.train.dagger import DaggerConfig, collect_config_from_manifest, run_dagger
 
@@ -178,6 +198,27 @@ def train_cmd(
     res = train(cfg, resume=resume)
     typer.echo(f"{res.step} steps ({res.steps_this_call} in this call, {res.elapsed_s / 60:.1f} min); "
                f"best checkpoint: {res.best}")
+
+
+@app.command("select")
+def select_cmd(
+    run: Path = typer.Argument(..., help="Run folder of `nue train --select closed_loop` (with snapshots/)."),
+    episodes_dir: Path = typer.Option(Path("episodes/select"), help="Selection episodes (training houses only)."),
+    scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the houses are (generated if missing)."),
+    candidates: int = typer.Option(3, help="How many of the last snapshots compete."),
+    max_episodes: int = typer.Option(0, help="First N episodes per house only (0 = all)."),
+    workers: int = typer.Option(1, help="Parallel local worker processes."),
+    device: str = typer.Option("cpu", help="cpu or cuda."),
+):
+    """Closed-loop model selection: run a run's last snapshots on training-house episodes, copy the best to best.pt."""
+    from nue.train.select import SelectConfig, select_checkpoint
+
+    ranked = select_checkpoint(run, SelectConfig(episodes_dir=str(episodes_dir), scenes_root=str(scenes_root),
+                                                 candidates=candidates, max_episodes=max_episodes, workers=workers,
+                                                 device=device))
+    for c in ranked:
+        typer.echo(f"{c.name}: SR {100 * c.sr:.1f}% SPL {c.spl:.3f} collisions/ep {c.collisions:.1f} (n={c.n})")
+    typer.echo(f"selected {ranked[0].name} -> {run / 'best.pt'}")
 
 
 @app.command("eval")
@@ -214,6 +255,7 @@ def report_cmd(
     out: Path = typer.Option(Path("results/report"), help="Folder for table.md/.csv/.tex and coverage.png."),
     results_md: Optional[Path] = typer.Option(None, help="Also write this RESULTS.md."),
     command: str = typer.Option("", help="The evaluation command, recorded in RESULTS.md."),
+    task: str = typer.Option("paper", help="Task preset of the records (its action ids, for the closed-loop diagnostics)."),
 ):
     """Table I (SR / SPL / DTS per difficulty, CIs, paired differences to NUE) and coverage."""
     import json
@@ -222,15 +264,64 @@ def report_cmd(
     from nue.evaluate.report import load_records, render_results_md, write_report
 
     recs = load_records(*records)
-    paths = write_report(recs, out)
+    paths = write_report(recs, out, task=task)
     typer.echo((out / "table.md").read_text() if (out / "table.md").is_file() else "")
     if results_md:
         meta_path = results_md.parent / f"{results_md.stem}.meta.json"
         meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {
             "command": command, "date": "", "commit": "", "machine": f"{platform.machine()}, {os.cpu_count()} CPUs"}
-        results_md.write_text(render_results_md(recs, meta))
+        results_md.write_text(render_results_md(recs, meta, task))
         typer.echo(f"wrote {results_md}")
     typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
+
+
+@app.command("diagnose")
+def diagnose_cmd(
+    records: list[Path] = typer.Option([], "--records", help="Record files (JSON lines) from `nue eval`; repeatable."),
+    method: list[str] = typer.Option([], help="Only these methods (repeatable; default: all)."),
+    checkpoint: Optional[Path] = typer.Option(None, help="With --data: held-out accuracy with intact, mirrored and other-step maps."),
+    data: Optional[Path] = typer.Option(None, help="Collection folder: previous-action probe on its maps (and the map controls)."),
+    part: str = typer.Option("heldout", help="Part of the collection to use (heldout or train)."),
+    task: str = typer.Option("paper", help="Task preset the records' action ids belong to."),
+    max_episodes: int = typer.Option(200, help="Map controls: at most this many episodes."),
+    probe_steps: int = typer.Option(20_000, help="Probe: subsample at most this many steps."),
+    probe_cog: bool = typer.Option(False, help="Probe: add the mean norm of I_cog to the features."),
+    seed: int = typer.Option(0, help="Seed of the other-step maps, the probe's subsample and its shuffled control."),
+    out: Optional[Path] = typer.Option(None, help="Also write everything as JSON here."),
+):
+    """Closed-loop diagnostics from records; map controls and a previous-action probe from demonstrations."""
+    import json
+
+    from nue.errors import ConfigError
+    from nue.evaluate import diagnose as D
+
+    if not records and data is None:
+        raise ConfigError(None, "nothing to diagnose: give --records and/or --data")
+    if checkpoint is not None and data is None:
+        raise ConfigError(checkpoint, "--checkpoint needs --data (the demonstrations to evaluate it on)")
+    result: dict = {}
+    if records:
+        diags = D.record_diagnostics(D.read_records(*records), task, method)
+        result["records"] = diags
+        typer.echo("## Closed-loop diagnostics\n\n" + D.format_record_diagnostics(diags))
+    if data is not None:
+        from nue.evaluate import diagnose_maps as M
+        from nue.train.dataset import DemoSet
+
+        demos = DemoSet(data, part, verify=False)
+        if checkpoint is not None:
+            result["map_controls"] = M.map_controls(checkpoint, demos, seed=seed, max_episodes=max_episodes)
+            typer.echo("## Map controls\n\n" + M.format_map_controls(result["map_controls"]))
+        try:
+            result["probe"] = M.previous_action_probe(demos, seed=seed, max_steps=probe_steps, with_cog=probe_cog)
+            typer.echo("## Previous-action probe\n\n" + M.format_probe(result["probe"], D.action_short_names(task)))
+        except M.ProbeUnavailable as exc:
+            result["probe"] = None
+            typer.echo(f"## Previous-action probe\n\nn/a: {exc}\n")
+    if out:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(D.to_jsonable(result), indent=1) + "\n")
+        typer.echo(f"wrote {out}")
 
 
 @app.command("demo")

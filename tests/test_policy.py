@@ -140,6 +140,28 @@ def test_ablation_presets_have_exactly_their_modules(name):
     assert cfg.uses_i_u == fu and cfg.uses_i_cog
 
 
+def test_goal_in_perception_feeds_the_goal_to_f_p():
+    paper, cfg = get_model_config("nue_paper"), get_model_config("nue")
+    assert cfg.goal_in_perception and not paper.goal_in_perception
+    assert paper.goal_size == (45, 60) and cfg.goal_size == cfg.frame_size == (90, 120)
+    model = build_model(cfg)
+    assert next(model.f_p.encoder.parameters()).shape[1] == 7 and next(build_model(paper).f_p.encoder.parameters()).shape[1] == 4
+    torch.manual_seed(0)
+    inp = PolicyInput(rgbd=torch.rand(2, 4, 90, 120), goal=torch.rand(2, 3, 90, 120), i_u=torch.rand(2, 1, 45, 60),
+                      i_cog=torch.rand(2, 64, 45, 60))
+    other = PolicyInput(inp.rgbd, torch.rand(2, 3, 90, 120), inp.i_u, inp.i_cog)
+    model.eval()
+    f_cog, _, f_p = model.features(inp)
+    f_cog2, _, f_p2 = model.features(other)
+    assert not torch.allclose(f_p, f_p2)  # the goal reaches f_p ...
+    paper_model = build_model(paper).eval()
+    small = PolicyInput(inp.rgbd, F.interpolate(inp.goal, size=(45, 60), mode="area"), inp.i_u, inp.i_cog)
+    small2 = PolicyInput(inp.rgbd, F.interpolate(other.goal, size=(45, 60), mode="area"), inp.i_u, inp.i_cog)
+    assert torch.equal(paper_model.features(small)[2], paper_model.features(small2)[2])  # ... not in the paper's layout
+    with pytest.raises(ConfigError):
+        get_model_config("fr").replace(goal_in_perception=True)
+
+
 def test_preset_sets_and_baselines():
     assert set(ABLATION_PRESETS) | {"nue"} == set(TABLE_ONE)
     assert {"fr", "nav_a3c"} <= set(MODEL_PRESETS)
@@ -353,7 +375,7 @@ def test_angle_l1_loss_wraps():
 
 
 def test_prepare_input_normalises_and_resizes():
-    cfg = get_model_config("nue")
+    cfg = get_model_config("nue_paper")
     rgb = np.full((180, 240, 3), 255, np.uint8)
     rgb[..., 1] = 51
     depth = np.full((180, 240), 2.5, np.float32)

@@ -1,7 +1,7 @@
 """Exploration coverage: floor area seen by the depth camera, per step, per episode and averaged per method.
 
 A floor cell counts as *seen* once the depth camera sees the floor there (not occluded, within
-``max_range`` metres of the robot; see :func:`seen_floor_cells`). The
+``max_range`` metres of the robot; see :func:`seen_floor_cells`, defined in :mod:`nue.sim.seen`). The
 runner accumulates the union of seen cells over an episode and stores the area after every step,
 in m², as ``record.extra["coverage"]``; :func:`mean_coverage_curves` averages those curves per
 method and :func:`plot_coverage` draws them.
@@ -16,96 +16,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Protocol, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from nue.evaluate.metrics import EpisodeRecord
-from nue.sim.camera import depth_to_points, world_from_camera
+from nue.sim.record import EpisodeRecord
+from nue.sim.seen import CoverageConfig, GridLike, cell_area, seen_floor_cells, seen_obstacle_cells
 from nue.sim.task import CameraConfig
+
+__all__ = [  # the per-frame geometry lives in nue.sim.seen (the exploring expert uses it too); re-exported
+    "COVERAGE_KEY", "CoverageConfig", "CoverageTracker", "GridLike", "cell_area", "coverage_curve",
+    "format_coverage_markdown", "mean_coverage_curves", "pad_curves", "plot_coverage", "seen_floor_cells",
+    "seen_obstacle_cells",
+]
 
 COVERAGE_KEY = "coverage"
 """Key of ``EpisodeRecord.extra`` holding the per-step seen floor area, m² (list of floats)."""
-
-
-class GridLike(Protocol):
-    """What the coverage functions need of a grid (``nue.scene.navgrid.NavGrid`` fits)."""
-
-    free: np.ndarray
-    """(M, M) cells; only its shape is used."""
-    cell: float
-    """Cell size, metres."""
-
-    def cell_of(self, xy) -> np.ndarray:
-        """World (x, y) (..., 2) -> cell (row, col) (..., 2), int."""
-        ...
-
-    def cell_centre(self, rc) -> np.ndarray:
-        """Cell (row, col) (..., 2) -> world (x, y) (..., 2) of its centre."""
-        ...
-
-
-@dataclass(frozen=True)
-class CoverageConfig:
-    """Which floor cells a depth frame counts as seen."""
-
-    max_range: float = 5.0
-    """Horizontal distance from the robot beyond which the floor does not count, metres
-    (the policy sees depth clipped at 5 m)."""
-    floor_tolerance: float = 0.05
-    """A back-projected point is on the floor when ``|z - floor_z| <=`` this, metres."""
-
-
-def cell_area(grid: GridLike) -> float:
-    """Area of one grid cell, m²."""
-    return float(grid.cell) ** 2
-
-
-def seen_floor_cells(depth: np.ndarray, pose, camera: CameraConfig, grid: GridLike, floor_z: float = 0.0,
-                     config: CoverageConfig = CoverageConfig()) -> np.ndarray:
-    """Grid cells whose floor this depth frame sees: an (M, M) bool mask.
-
-    ``depth``: (H, W) or (H, W, 1) z-depth, metres (0 or NaN = no surface), at the camera's
-    resolution; ``pose``: robot ``(x, y, yaw)``; ``grid``: (M, M) cells (see :class:`GridLike`).
-
-    Every pixel is back-projected (:func:`nue.sim.camera.depth_to_points`); a pixel *sees floor*
-    when its point lies within ``floor_tolerance`` of the floor plane. A cell is seen when its
-    centre is within ``max_range`` (xy) of the robot, projects (on the floor plane) into the image,
-    and the pixel it lands in sees floor (so occluded floor does not count), or when a floor point
-    falls inside it. Projecting cell centres leaves no holes where far floor rows are sparse.
-    """
-    h, w = camera.height, camera.width
-    z = np.nan_to_num(np.asarray(depth, dtype=np.float64).reshape(h, w), nan=0.0)
-    pts = depth_to_points(z, pose, camera, floor_z)
-    x0, y0 = float(pose[0]), float(pose[1])
-    floor_px = (z > 0) & (np.abs(pts[..., 2] - floor_z) <= config.floor_tolerance)
-    floor_px &= np.hypot(pts[..., 0] - x0, pts[..., 1] - y0) <= config.max_range
-    m_rows, m_cols = grid.free.shape
-    mask = np.zeros((m_rows, m_cols), dtype=bool)
-    # 1) cells containing a floor point
-    rc = np.asarray(grid.cell_of(pts[floor_px][:, :2])).reshape(-1, 2)
-    ok = (rc[:, 0] >= 0) & (rc[:, 0] < m_rows) & (rc[:, 1] >= 0) & (rc[:, 1] < m_cols)
-    mask[rc[ok, 0], rc[ok, 1]] = True
-    # 2) cells in range whose centre's floor point projects onto a pixel that sees floor
-    lo = np.asarray(grid.cell_of((x0 - config.max_range, y0 - config.max_range)))
-    hi = np.asarray(grid.cell_of((x0 + config.max_range, y0 + config.max_range)))
-    lo, hi = np.clip(lo, 0, [m_rows - 1, m_cols - 1]), np.clip(hi, 0, [m_rows - 1, m_cols - 1])
-    rr, cc = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
-    cells = np.stack([rr.ravel(), cc.ravel()], axis=-1)
-    centres = np.asarray(grid.cell_centre(cells))
-    near = np.hypot(centres[:, 0] - x0, centres[:, 1] - y0) <= config.max_range
-    cells, centres = cells[near], centres[near]
-    m = world_from_camera(pose, camera, floor_z)
-    p = np.c_[centres, np.full(len(centres), floor_z)]
-    p_cam = (p - m[:3, 3]) @ m[:3, :3]  # world -> camera (rotation is orthonormal)
-    front = p_cam[:, 2] > 1e-6
-    u = np.floor(camera.fx * p_cam[front, 0] / p_cam[front, 2] + camera.cx).astype(np.int64)
-    v = np.floor(camera.fy * p_cam[front, 1] / p_cam[front, 2] + camera.cy).astype(np.int64)
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    cells = cells[front][inside]
-    sees = floor_px[v[inside], u[inside]]
-    mask[cells[sees, 0], cells[sees, 1]] = True
-    return mask
 
 
 def coverage_curve(masks: Iterable[np.ndarray], area_per_cell: float) -> np.ndarray:

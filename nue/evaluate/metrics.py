@@ -10,51 +10,13 @@
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from typing import Iterable, Sequence
 
+from nue.sim.record import EpisodeRecord
 
-@dataclass(frozen=True)
-class EpisodeRecord:
-    """What one finished episode produced; everything the metrics need."""
-
-    episode_id: str
-    """Episode identifier (unique within its scene)."""
-    scene: str
-    """Scene name."""
-    difficulty: str
-    """Difficulty bin (``easy`` / ``medium`` / ``hard``)."""
-    success: bool
-    """Whether the episode ended in success under its task preset."""
-    geodesic_start: float
-    """Geodesic start->goal distance l, metres."""
-    path_length: float
-    """Distance travelled p, metres."""
-    final_geodesic: float
-    """Geodesic distance from the final position to the goal, metres."""
-    final_euclidean: float
-    """Euclidean xy distance from the final position to the goal, metres."""
-    success_radius: float
-    """The task preset's success radius r, metres."""
-    collisions: int = 0
-    """Number of steps in which a forward move was blocked."""
-    steps: int = 0
-    """Number of actions taken."""
-    path_type: str = ""
-    """``straight`` or ``curved`` (geodesic / euclidean < 1.2)."""
-    method: str = ""
-    """Name of the agent (e.g. ``expert``, ``nue``)."""
-    wall_time: float = 0.0
-    """Seconds the episode took."""
-    extra: dict = field(default_factory=dict)
-    """Free-form additions (seed, checkpoint, ...)."""
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "EpisodeRecord":
-        return cls(**d)
+__all__ = ["EpisodeRecord", "aggregate", "collisions", "dts", "format_table", "path_length", "spl", "success",
+           "summarize", "Summary"]
 
 
 def success(r: EpisodeRecord) -> float:

@@ -25,6 +25,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from nue.evaluate import coverage as cov
+from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, record_diagnostics
 from nue.evaluate.metrics import EpisodeRecord, dts, spl, success
 from nue.evaluate.stats import paired_bootstrap, wilson_interval  # noqa: F401  (re-exported)
 from nue.evaluate.table import (  # noqa: F401  (re-exported)
@@ -243,17 +244,24 @@ NOTES = (
 )
 
 
-def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = True) -> dict[str, Path]:
-    """Write ``table.md`` (table, counts, paired differences), ``table.csv``, ``table.tex`` and ``coverage.png``.
+def closed_loop_markdown(records: Sequence[EpisodeRecord], task: str = "paper") -> str:
+    """Per-method closed-loop diagnostics (:mod:`nue.evaluate.diagnose`) as a Markdown table plus its notes."""
+    return f"{format_record_diagnostics(record_diagnostics(records, task))}\n{DIAGNOSTICS_NOTES}\n"
 
-    Returns ``{name: path}``. ``reference``: interleave the paper's rows.
+
+def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = True, task: str = "paper") -> dict[str, Path]:
+    """Write ``table.md`` (table, counts, paired differences, closed-loop diagnostics), ``table.csv``,
+    ``table.tex`` and ``coverage.png``.
+
+    Returns ``{name: path}``. ``reference``: interleave the paper's rows; ``task``: the preset of the action ids.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rows = build_table(records)
     paper = paper_table() if reference else None
     md = (f"# Table I\n\n{format_markdown(rows, paper)}\n{NOTES}\n\n## Episodes per cell (successes / episodes)\n\n"
-          f"{format_counts_markdown(rows)}\n## Paired differences to NUE\n\n{format_paired_markdown(paired_differences(records))}")
+          f"{format_counts_markdown(rows)}\n## Paired differences to NUE\n\n{format_paired_markdown(paired_differences(records))}"
+          f"\n## Closed-loop diagnostics\n\n{closed_loop_markdown(records, task)}")
     paths = {"table.md": out / "table.md", "table.csv": out / "table.csv", "table.tex": out / "table.tex"}
     paths["table.md"].write_text(md)
     paths["table.csv"].write_text(format_csv(rows, paper))
@@ -283,7 +291,7 @@ def _ordering_markdown(rows: Sequence[TableRow], paper: Mapping) -> str:
     return "\n".join(lines) + f"\n\nKendall's tau between the two orderings: {_f(float(tau), '.2f')}.\n"
 
 
-def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, object]) -> str:
+def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, object], task: str = "paper") -> str:
     """The text of RESULTS.md, a pure function of the records and ``meta``.
 
     ``meta``: ``command``, ``date``, ``commit``, ``machine`` (shown first), any other keys
@@ -315,6 +323,8 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     if curves:
         parts.append("## Exploration coverage (mean seen floor area, m²)\n\nEpisodes that ended keep their final "
                      f"area.\n\n{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
+    if records:
+        parts.append(f"## Closed-loop diagnostics\n\n{closed_loop_markdown(records, task)}")
     if meta.get("discussion"):
         parts.append(f"## Discussion\n\n{meta['discussion']}\n")
     return "\n".join(parts)

@@ -22,6 +22,8 @@ from nue.jobs import Job, run_jobs
 from nue.train.collect import episode_seed
 
 _CACHE: dict = {}
+EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore"}
+"""Method specs that run an expert instead of a checkpoint -> ``ExpertAgent(kind=...)``."""
 
 
 @dataclass(frozen=True)
@@ -51,9 +53,10 @@ class EvalConfig:
 
 
 def parse_method(spec: str) -> tuple[str, str | None]:
-    """``name=path``, ``path`` (name from the checkpoint's model config) or ``expert``."""
-    if spec == "expert":
-        return "expert", None
+    """``name=path``, ``path`` (name from the checkpoint's model config), ``expert`` (the geodesic expert)
+    or ``expert-explore`` (the exploring expert, ``nue.sim.explorer``)."""
+    if spec in EXPERT_METHODS:
+        return spec, None
     if "=" in spec:
         name, path = spec.split("=", 1)
         return name, path
@@ -195,13 +198,15 @@ def eval_episode(job: Job) -> dict:
     from nue.policy.agent import PolicyAgent
     from nue.rollout import ExpertAgent, run_episode
     from nue.sim.episodes import Episode
+    from nue.sim.explorer import ExploringExpert
 
     p = job.payload
     env = _env(p)
     episode = Episode.from_dict(p["episode"])
     extra = {"key": job.key, "seed": p["seed"], "checkpoint": p["checkpoint"]}
     if p["checkpoint"] is None:
-        agent, memory = ExpertAgent(), None
+        kind = EXPERT_METHODS.get(p["method"].split("+")[0], "geodesic")
+        agent, memory = ExpertAgent(kind=kind), None
     else:
         model, ckpt, memory = _policy(p, env)
         agent = PolicyAgent(model, greedy=env.task.greedy, device=p["device"])
@@ -213,6 +218,8 @@ def eval_episode(job: Job) -> dict:
     record = run_episode(env, agent, episode=episode, memory=memory, seed=p["seed"], on_step=tracker,
                          method=p["method"])
     extra["wall_time"] = time.perf_counter() - t0
+    if isinstance(getattr(agent, "expert", None), ExploringExpert):
+        extra["explorer"] = dict(agent.expert.stats)
     if tracker is not None:
         extra["coverage"] = [round(float(a), 3) for a in tracker.areas]
     d = record.to_dict()

@@ -49,6 +49,10 @@ class MemoryConfig:
     """Add the frame to the replay every k-th step (``step``); 1 = every frame."""
     replay_size: int = 100
     """Frames kept in the replay; the oldest is dropped first [100]."""
+    lag: int = 0
+    """Memory lag: frame t joins the replay (and is trained on) only at step t + lag, so the maps of step t come
+    from a NeRF that has learned frames up to t - 1 - lag (0 = up to t - 1, the paper's synchronous order; the
+    authors' asynchronous trainer lags by several steps)."""
     newest_fraction: float = 0.0
     """Fraction of each iteration's rays drawn from the newest frame; the rest uniformly from the replay."""
     lr: float = 5e-4
@@ -78,14 +82,20 @@ class MemoryConfig:
                 raise ConfigError(None, f"memory {name} must be >= 1, got {getattr(self, name)}")
         if not 0.0 <= self.newest_fraction <= 1.0:
             raise ConfigError(None, f"memory newest_fraction must lie in [0, 1], got {self.newest_fraction}")
+        if self.lag < 0:
+            raise ConfigError(None, f"memory lag must be >= 0, got {self.lag}")
 
     def replace(self, **changes) -> "MemoryConfig":
         """A copy with some fields changed (``dataclasses.replace``)."""
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict:
-        """Plain-data form for checkpoints (``MemoryConfig.from_dict`` inverts it)."""
-        return dataclasses.asdict(self)
+        """Plain-data form for checkpoints (``MemoryConfig.from_dict`` inverts it). ``lag`` is written only when
+        set, so configs from before it existed keep their exact dict (manifests, checkpoints compare dicts)."""
+        d = dataclasses.asdict(self)
+        if not d["lag"]:
+            del d["lag"]
+        return d
 
     @classmethod
     def from_dict(cls, data: dict) -> "MemoryConfig":

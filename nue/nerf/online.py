@@ -19,6 +19,7 @@ seed and frames give the same maps.
 
 from __future__ import annotations
 
+import collections
 from dataclasses import dataclass
 
 import numpy as np
@@ -139,6 +140,7 @@ class OnlineNeRF:
         self.generator.manual_seed(int(seed))
         self.frame: EpisodeFrame | None = None
         self.steps = 0
+        self._pending: collections.deque = collections.deque()  # frames waiting out the memory lag
         self._n = 0  # frames in the replay
         self._next = 0  # ring-buffer slot of the next frame
         self._newest = -1
@@ -250,7 +252,13 @@ class OnlineNeRF:
 
     def step(self, rgb, depth, pose, floor_z: float = 0.0) -> UpdateStats | None:
         """One environment step of the schedule: observe every ``observe_every``-th frame, update every
-        ``update_every``-th step. Call after ``render_maps`` for the same step. Returns the update's stats."""
+        ``update_every``-th step. Call after ``render_maps`` for the same step. Returns the update's stats.
+        With ``lag`` = k the frame handled is the one of k steps ago (nothing for the first k steps)."""
+        if self.config.lag:
+            self._pending.append((np.array(rgb, copy=True), np.array(depth, copy=True), np.array(pose, copy=True), floor_z))
+            if len(self._pending) <= self.config.lag:
+                return None
+            rgb, depth, pose, floor_z = self._pending.popleft()
         t = self.steps
         self.steps += 1
         if t % self.config.observe_every == 0:

@@ -73,5 +73,50 @@ class MixedAgent:
         policy_action = self.policy.act(obs, maps)  # always run: keeps the recurrent state in step
         self.t += 1
         if self.policy_steps is not None and self.t > self.policy_steps:
-            return self.last_expert_action
-        return self.last_expert_action if self.rng.random() < self.beta else policy_action
+            action = self.last_expert_action
+        else:
+            action = self.last_expert_action if self.rng.random() < self.beta else policy_action
+        self.executed(action)
+        return action
+
+    def executed(self, action: int) -> None:
+        """Pass the executed action on to the expert (its blocked-move check compares against it)."""
+        if hasattr(self.expert, "executed"):
+            self.expert.executed(action)
+
+
+class NoisyAgent:
+    """DART-style noise injection (Laskey et al. 2017): with probability ``epsilon`` the executed action is
+    replaced by one drawn uniformly from the task's moves (never STOP); the label stays the inner agent's.
+
+    ``last_expert_action`` is the inner agent's label for the current state (an expert's own action, or a
+    :class:`MixedAgent`'s expert label), so demonstrations get the expert's answer in states the expert
+    would not have visited itself: after a random turn, next to walls, after a blocked move. The
+    executed action is reported back to the inner agent (``executed``), so its blocked-move recovery
+    sees what really happened. Seeded per episode: the same seed gives the same noise.
+    """
+
+    def __init__(self, inner, epsilon: float, actions: tuple[str, ...]):
+        if not 0.0 <= epsilon <= 1.0:
+            raise ValueError(f"noise epsilon must be in [0, 1], got {epsilon}")
+        self.inner, self.epsilon = inner, float(epsilon)
+        self.moves = np.array([i for i, a in enumerate(actions) if a != "STOP"], dtype=np.int64)
+        self.rng = np.random.default_rng(0)
+        self.last_expert_action: int | None = None
+        self.noisy_steps = 0
+
+    def reset(self, env, obs, seed: int = 0) -> None:
+        self.inner.reset(env, obs, seed)
+        self.rng = np.random.default_rng(np.random.SeedSequence([seed, 3]))
+        self.noisy_steps = 0
+
+    def act(self, obs, maps) -> int:
+        action = int(self.inner.act(obs, maps))
+        label = getattr(self.inner, "last_expert_action", None)
+        self.last_expert_action = action if label is None else int(label)
+        if self.rng.random() < self.epsilon:
+            action = int(self.rng.choice(self.moves))
+            self.noisy_steps += 1
+            if hasattr(self.inner, "executed"):
+                self.inner.executed(action)
+        return action

@@ -13,7 +13,8 @@ preset          f_u    AT     CBAM   note
 ``abl_at_cbam`` no     yes    yes
 ``abl_fu_cbam`` yes    no     yes
 ``abl_fu_at``   yes    yes    no
-``nue``         yes    yes    yes    full model (last row)
+``nue``         yes    yes    yes    full model (last row); the goal also enters f_p (``goal_in_perception``)
+``nue_paper``   yes    yes    yes    full model in the paper's layout (goal only through f_cog)
 ``fr``          --     no     --     fully reactive: RGB-D + goal -> CNN -> policy
 ``nav_a3c``     --     no     --     same encoder as ``fr`` + LSTM memory
 ==============  =====  =====  =====  ==========================================
@@ -45,6 +46,10 @@ class ModelConfig:
     """Include the auxiliary head predicting the goal angle (NUE: from f_cog; baselines: from the policy feature)."""
     use_cbam: bool = True
     """NUE only: CBAM attention after the residual blocks of f_u and f_cog."""
+    goal_in_perception: bool = False
+    """NUE only: the goal image also enters f_p, stacked with the live RGB-D frame in its first layer at frame
+    size (as FR does), so NUE has FR's map-free pathway; f_cog still gets the goal at map size. False is the
+    paper's layout (the goal enters only through f_cog)."""
     num_actions: int = 3
     """Number of discrete actions; take it from the task preset with :meth:`for_task`."""
 
@@ -100,8 +105,9 @@ class ModelConfig:
         where = f"model config {self.name!r}"
         if self.kind not in MODEL_KINDS:
             raise ConfigError(where, f"unknown kind {self.kind!r}; known: {', '.join(MODEL_KINDS)}")
-        if self.kind != "nue" and (self.use_uncertainty or self.use_cbam):
-            raise ConfigError(where, f"use_uncertainty / use_cbam apply to kind 'nue' only, not {self.kind!r}")
+        if self.kind != "nue" and (self.use_uncertainty or self.use_cbam or self.goal_in_perception):
+            raise ConfigError(where, f"use_uncertainty / use_cbam / goal_in_perception apply to kind 'nue' only, "
+                                     f"not {self.kind!r}")
         if self.num_actions < 2:
             raise ConfigError(where, f"num_actions must be >= 2, got {self.num_actions}")
         sizes = (self.map_height, self.map_width, self.frame_height, self.frame_width, *self.map_grid,
@@ -143,8 +149,9 @@ class ModelConfig:
 
     @property
     def goal_size(self) -> tuple[int, int]:
-        """(h, w) of the goal image the model reads: the map size for NUE (it joins I_cog), else the frame size."""
-        return self.map_size if self.kind == "nue" else self.frame_size
+        """(h, w) of the goal image the model reads: the map size for the paper's NUE (it joins I_cog only), else
+        the frame size (baselines, and NUE with ``goal_in_perception``, whose f_cog area-resizes it to map size)."""
+        return self.map_size if self.kind == "nue" and not self.goal_in_perception else self.frame_size
 
     @property
     def recurrent(self) -> bool:
@@ -177,7 +184,8 @@ class ModelConfig:
 _NUE = ModelConfig()
 
 MODEL_PRESETS: dict[str, ModelConfig] = {
-    "nue": _NUE,
+    "nue": _NUE.replace(goal_in_perception=True),
+    "nue_paper": _NUE.replace(name="nue_paper"),
     "abl_none": _NUE.replace(name="abl_none", use_uncertainty=False, use_aux=False, use_cbam=False),
     "abl_fu": _NUE.replace(name="abl_fu", use_uncertainty=True, use_aux=False, use_cbam=False),
     "abl_at_cbam": _NUE.replace(name="abl_at_cbam", use_uncertainty=False, use_aux=True, use_cbam=True),

@@ -6,6 +6,7 @@ perception f_p, and attention-weighted fusion into action logits (eqs. 8-10, 13-
     f_u   = MLP(flatten(CBAM(pool(res(res(log1p(I_u / s)))))))          (B, 64)   eq. 10
     f_cog = MLP(flatten(CBAM(pool(res(res([I_cog, goal]))))))            (B, 64)
     f_p   = MLP(flatten(pool(res(res(res(rgbd))))))                      (B, 256)
+            [or of [rgbd, goal] at frame size with ``goal_in_perception``, as FR's first layer]
     f_cat1 = [f_cog, f_u, f_p];  w = sigmoid(MLP(f_cat1))
     f_cat2 = MLP(w * f_cat1);    logits = MLP(f_cat2)                    eqs. 13-14
     aux_angle = wrap(MLP_2layer(f_cog))
@@ -64,7 +65,7 @@ class NUEPolicy(PolicyModel):
             ConvBranch(1, c.uncertainty_channels, c.map_grid, c.branch_dim, **cbam) if c.use_uncertainty else None
         )
         self.f_cog = ConvBranch(c.cog_channels + 3, c.cognition_channels, c.map_grid, c.branch_dim, **cbam)
-        self.f_p = ConvBranch(4, c.perception_channels, c.perception_grid, c.perception_dim, negative_slope=s)
+        self.f_p = ConvBranch(7 if c.goal_in_perception else 4, c.perception_channels, c.perception_grid, c.perception_dim, negative_slope=s)
         self.aux_head = mlp([c.branch_dim, c.aux_hidden, 1], s, final_activation=False) if c.use_aux else None
         fused = c.branch_dim * (2 if c.use_uncertainty else 1) + c.perception_dim
         self.fusion = FusionHead(fused, config)
@@ -82,7 +83,8 @@ class NUEPolicy(PolicyModel):
         if self.f_u is not None:
             assert inp.i_u is not None
             f_u = self.f_u(torch.log1p(inp.i_u.clamp_min(0.0) / self.config.uncertainty_scale))
-        return f_cog, f_u, self.f_p(inp.rgbd)
+        frame = torch.cat([inp.rgbd, inp.goal], dim=1) if self.config.goal_in_perception else inp.rgbd
+        return f_cog, f_u, self.f_p(frame)
 
     def forward(self, inp: PolicyInput, state: State = None, reset_mask: Tensor | None = None) -> PolicyOutput:
         f_cog, f_u, f_p = self.features(inp)

@@ -19,11 +19,11 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from nue.evaluate.metrics import EpisodeRecord
 from nue.scene.navgrid import NavGrid
 from nue.scene.scene import Scene
 from nue.sim.camera import wrap_angle
 from nue.sim.episodes import Episode, validate_episode
+from nue.sim.record import TRAJECTORY_KEY, EpisodeRecord, Trajectory
 from nue.sim.renderer import Renderer
 from nue.sim.task import TaskConfig, get_task
 
@@ -99,6 +99,8 @@ class ImageNavEnv(gym.Env):
         self.done = False
         self.geodesic_start = self.navgrid.lookup(self._field, self.pose[:2])
         self.trajectory = [self.pose.copy()]
+        self.actions: list[int] = []
+        self.collided: list[bool] = []
         self._geo = self.geodesic_start
         self._t0 = time.perf_counter()
         self._obs = self._observe()
@@ -127,6 +129,8 @@ class ImageNavEnv(gym.Env):
         self.steps += 1
         self.collisions += int(collided)
         self.trajectory.append(self.pose.copy())
+        self.actions.append(int(action))
+        self.collided.append(bool(collided))
         prev_geo = self._geo
         self._geo = self.navgrid.lookup(self._field, self.pose[:2])
         inside = self._distance_for_success() <= self.task.success_radius
@@ -183,8 +187,13 @@ class ImageNavEnv(gym.Env):
             path_type=ep.path_type,
             method=method,
             wall_time=time.perf_counter() - self._t0,
-            extra=dict(extra),
+            extra={TRAJECTORY_KEY: self.trajectory_so_far().encode(), **extra},
         )
+
+    def trajectory_so_far(self) -> Trajectory:
+        """Actions, blocked-move flags and poses of the current episode so far."""
+        return Trajectory(np.array(self.actions, dtype=np.int64), np.array(self.collided, dtype=bool),
+                          np.array(self.trajectory, dtype=np.float64).reshape(-1, 3))
 
     def _distance_for_success(self) -> float:
         return self._geo if self.task.success_metric == "geodesic" else self.euclidean_distance

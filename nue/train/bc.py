@@ -72,20 +72,75 @@ class TrainConfig:
     device: str = "cpu"
     """Training device."""
     precision: str = "fp32"
-    """``fp32``, or ``bf16``: forward and backward under bfloat16 autocast (weights, optimiser and loss stay
-    float32). About 2x the samples/s on CPUs with AVX512-BF16 (``make bench``); the shipped checkpoints are fp32."""
+    """``fp32``; ``bf16``: forward and backward under bfloat16 autocast (weights, optimiser and loss stay
+    float32), about 2x the samples/s on CPUs with AVX512-BF16 (``make bench``); ``auto``: bf16 where the
+    device supports it natively (CPU with AVX512-BF16/AMX, CUDA with bf16), else fp32."""
+    map_dropout: float = 0.0
+    """Probability per sample that its memory maps (I_u, I_cog) are replaced by those of another sample of
+    the batch, so the policy cannot rely on the maps alone (e.g. for obstacle avoidance); 0 = off."""
+    select: str = "accuracy"
+    """How ``best.pt`` is chosen: ``accuracy`` (held-out action accuracy at each evaluation) or
+    ``closed_loop`` (after training, the last ``select_candidates`` snapshots are run in closed loop on the
+    selection episodes of the training houses and the one with the highest SR (then SPL) wins)."""
+    select_episodes: str = "episodes/select"
+    """Closed-loop selection: folder of episode files of training houses (never the validation houses)."""
+    select_candidates: int = 3
+    """Closed-loop selection: how many of the last snapshots compete."""
+    select_workers: int = 1
+    """Closed-loop selection: worker processes."""
     verify_data: bool = True
     """Check every episode file's checksums when opening the data (bad files are skipped)."""
 
     def __post_init__(self) -> None:
         if self.precision not in PRECISIONS:
             raise ConfigError("train config", f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
+        if not 0.0 <= self.map_dropout <= 1.0:
+            raise ConfigError("train config", f"map_dropout must be in [0, 1], got {self.map_dropout}")
+        if self.select not in SELECTIONS:
+            raise ConfigError("train config", f"select must be one of {', '.join(SELECTIONS)}, got {self.select!r}")
 
     def replace(self, **kw) -> "TrainConfig":
         return dataclasses.replace(self, **kw)
 
 
-PRECISIONS = ("fp32", "bf16")
+PRECISIONS = ("auto", "fp32", "bf16")
+SELECTIONS = ("accuracy", "closed_loop")
+
+
+def resolve_precision(precision: str, device: torch.device) -> str:
+    """``auto`` -> ``bf16`` where ``device`` runs bfloat16 natively (CPU: AVX512-BF16 or AMX; CUDA: bf16
+    support), else ``fp32``; other values pass through."""
+    if precision != "auto":
+        return precision
+    if device.type == "cuda":
+        return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
+    try:
+        return "bf16" if torch.ops.mkldnn._is_mkldnn_bf16_supported() else "fp32"
+    except (AttributeError, RuntimeError):  # pragma: no cover - builds without oneDNN
+        return "fp32"
+
+
+def swap_maps(batch, rng: np.random.Generator, p: float):
+    """Map dropout: each sample's (I_u, I_cog) replaced with probability ``p`` by another sample's.
+
+    ``batch.inp.i_u`` (N, 1, h, w) / ``i_cog`` (N, 64, h, w) for a flat batch (the leading dims are
+    flattened and restored). Draws from ``rng`` (the run's generator, so a resumed run repeats it).
+    """
+    inp = batch.inp
+    if p <= 0 or (inp.i_u is None and inp.i_cog is None):
+        return batch
+    ref = inp.i_cog if inp.i_cog is not None else inp.i_u
+    lead = ref.shape[:-3]
+    n = int(np.prod(lead))
+    drop = torch.as_tensor(rng.random(n) < p)
+    src = torch.as_tensor(rng.permutation(n))
+    idx = torch.where(drop, src, torch.arange(n))
+
+    def take(x):
+        return None if x is None else x.reshape(n, *x.shape[-3:])[idx].reshape(x.shape)
+
+    inp = dataclasses.replace(inp, i_u=take(inp.i_u), i_cog=take(inp.i_cog))
+    return dataclasses.replace(batch, inp=inp)
 
 
 def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainConfig, device: torch.device):
@@ -93,7 +148,7 @@ def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainCo
     bfloat16 autocast and the loss is taken on its outputs cast back to float32."""
     from nue.policy.base import PolicyOutput
 
-    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=cfg.precision == "bf16"):
+    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=resolve_precision(cfg.precision, device) == "bf16"):
         out = net(batch.inp, model.initial_state(reset_t.shape[1], device), reset_t)
     out = PolicyOutput(out.logits.float(), None if out.aux_angle is None else out.aux_angle.float(), out.state)
     return bc_loss(out, batch, weights, cfg.aux_weight)
@@ -250,7 +305,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
 
     memory_cfg = MemoryConfig.from_dict(data.manifest["memory"])
     meta = policy_meta(task, memory_cfg, model_cfg, data.manifest["scenes"], manifest_hash(data.manifest),
-                       dataclasses.asdict(cfg), {"episodes": data.n_episodes, "steps": len(data),
+                       {**dataclasses.asdict(cfg), "precision_resolved": resolve_precision(cfg.precision, device)},
+                       {"episodes": data.n_episodes, "steps": len(data),
                                                  "skipped": [str(p) for p, _ in data.skipped]})
     writer = None
     if rank == 0:
@@ -287,6 +343,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
             eps, steps_ = drawn
             batch = data.batch(eps[None], steps_[None], model_cfg, device)
             reset_t = torch.ones(batch.action.shape, dtype=torch.bool, device=device)
+            batch = swap_maps(batch, rng, cfg.map_dropout)
         loss, ce, aux = forward_loss(net, model, batch, reset_t, weights, cfg, device)
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -314,9 +371,11 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
                 for k, v in metrics.items():
                     writer.add_scalar(f"metrics/{k}", v, step)
             score = metrics.get("action_accuracy", -loss.item())
+            if cfg.select == "closed_loop":
+                checkpoint(f"snapshots/step_{step:06d}.pt", full=False, metrics=metrics)
             if score > best:
                 best = score
-                checkpoint("best.pt", full=False, metrics=metrics)
+                checkpoint("best.pt" if cfg.select == "accuracy" else "best_accuracy.pt", full=False, metrics=metrics)
             checkpoint("last.pt", full=True, metrics=metrics)
             bar.set_postfix(loss=f"{loss.item():.3f}", **{k: f"{v:.3f}" for k, v in metrics.items()})
             if fail_at and step >= fail_at:
@@ -328,6 +387,13 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     bar.close()
     if writer is not None:
         writer.close()
+    if world > 1:
+        torch.distributed.barrier()
+    if cfg.select == "closed_loop" and rank == 0:
+        from nue.train.select import SelectConfig, select_checkpoint
+
+        select_checkpoint(out_dir, SelectConfig(episodes_dir=cfg.select_episodes, candidates=cfg.select_candidates,
+                                                workers=cfg.select_workers, device=cfg.device), progress=progress)
     if world > 1:
         torch.distributed.barrier()
     return TrainResult(out_dir / "best.pt", out_dir / "last.pt", step, step - first_step, elapsed)

@@ -58,6 +58,23 @@ class CollectConfig:
     agent: tuple = (("kind", "expert"),)
     """Who drives: ``expert``, or ``dagger`` with ``checkpoint``, ``beta`` and ``expert_steps_from`` (the
     expert collection whose step counts cap policy control at ``max_factor`` x; the expert finishes)."""
+    memory_lag: int = 0
+    """Override the memory's ``lag`` (frames join the NeRF this many steps late); 0 = keep the preset's."""
+    expert: str = "geodesic"
+    """Which expert drives (``expert``) or labels (``dagger``): ``geodesic`` (shortest path to the goal it
+    knows) or ``explore`` (frontiers of its own seen map until the goal is in view, then geodesic)."""
+    noise: float = 0.0
+    """DART-style noise injection: probability that the executed action is replaced by a random move; the
+    label stays the expert's (0 = none)."""
+
+    def __post_init__(self) -> None:
+        if self.expert not in EXPERT_KINDS:
+            raise DataError(None, f"unknown expert {self.expert!r}; known: {', '.join(EXPERT_KINDS)}")
+        if not 0.0 <= self.noise < 1.0:
+            raise DataError(None, f"noise must be in [0, 1), got {self.noise}")
+
+
+EXPERT_KINDS = ("geodesic", "explore")
 
 
 def episode_seed(seed: int, scene: str, episode_id: str) -> int:
@@ -82,6 +99,8 @@ def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], d
     task = get_task(cfg.task)
     model_cfg = get_model_config(cfg.model).for_task(task)
     memory = get_memory(cfg.memory)
+    if cfg.memory_lag:
+        memory = memory.replace(lag=cfg.memory_lag)
     if tuple(memory_map := (memory.map_height, memory.map_width)) != tuple(model_cfg.map_size):
         raise DataError(None, f"memory preset {memory.name!r} renders maps at {memory_map}, model {model_cfg.name!r} "
                               f"expects {model_cfg.map_size}")
@@ -105,7 +124,11 @@ def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], d
         manifest["subsample_per_bin"] = cfg.subsample_per_bin
     if dict(cfg.agent)["kind"] != "expert":
         manifest["agent"] = dict(cfg.agent)
-    agent = dict(cfg.agent)
+    if cfg.expert != "geodesic":  # recorded only when not the default, so older manifests stay valid
+        manifest["expert"] = cfg.expert
+    if cfg.noise:
+        manifest["noise"] = cfg.noise
+    agent = {**dict(cfg.agent), "expert": cfg.expert, "noise": cfg.noise}
     jobs = []
     for s in scenes:
         for part, per_bin, seed in (("train", cfg.episodes_per_bin, cfg.seed), ("heldout", cfg.heldout_per_bin, cfg.seed + 7919)):
@@ -261,20 +284,25 @@ def collect_episode(job: Job):
 
 
 def _make_agent(spec: dict, env):
+    """The driving agent of a collection job: the expert or DAgger's mix, wrapped in noise injection."""
+    from nue.policy.agent import MixedAgent, NoisyAgent, PolicyAgent
     from nue.rollout import ExpertAgent
 
+    kind = spec.get("expert", "geodesic")
+    expert = ExpertAgent() if kind == "geodesic" else ExpertAgent(kind=kind)
     if spec["kind"] == "expert":
-        return ExpertAgent()
-    if spec["kind"] == "dagger":
-        from nue.policy.agent import MixedAgent, PolicyAgent
+        agent = expert
+    elif spec["kind"] == "dagger":
         from nue.train.checkpoint import load_policy
 
         key = ("policy", spec["checkpoint"])
         if key not in _CACHE:
             _CACHE[key] = load_policy(spec["checkpoint"])[0]
         limit = int(spec.get("max_factor", 3) * spec["expert_steps"]) if spec.get("expert_steps") else None
-        return MixedAgent(PolicyAgent(_CACHE[key], greedy=False), ExpertAgent(), spec["beta"], policy_steps=limit)
-    raise ValueError(f"unknown agent kind {spec['kind']!r}")
+        agent = MixedAgent(PolicyAgent(_CACHE[key], greedy=False), expert, spec["beta"], policy_steps=limit)
+    else:
+        raise ValueError(f"unknown agent kind {spec['kind']!r}")
+    return NoisyAgent(agent, spec["noise"], env.task.actions) if spec.get("noise") else agent
 
 
 @dataclass

@@ -95,4 +95,4 @@ def collect_config_from_manifest(manifest: dict, scene_dirs=(), device: str = "c
     return CollectConfig(task=manifest["task"], memory=manifest["memory"], split=manifest["split"],
                          houses=houses, scene_dirs=tuple(str(d) for d in scene_dirs),
                          episodes_per_bin=manifest["episodes_per_bin"], heldout_per_bin=0, seed=manifest["seed"],
-                         device=device)
+                         device=device, expert=manifest.get("expert", "geodesic"), noise=manifest.get("noise", 0.0))

@@ -118,7 +118,7 @@ class DemoSet:
         """Gather the given (episode, step) pairs, any leading shape, into a :class:`Batch`."""
         shape = episodes.shape
         ep, st = episodes.ravel(), steps.ravel()
-        goal_key = "goal_map" if model_cfg.kind == "nue" else "goal_frame"
+        goal_key = "goal_map" if tuple(model_cfg.goal_size) == tuple(model_cfg.map_size) else "goal_frame"
 
         def gather(key, per_episode=False):
             parts = [self.episodes[e][key] if per_episode else self.episodes[e][key][t] for e, t in zip(ep, st)]
