@@ -305,6 +305,13 @@ def _make_agent(spec: dict, env):
     return NoisyAgent(agent, spec["noise"], env.task.actions) if spec.get("noise") else agent
 
 
+def _resize_area(x, size):
+    """Area-resize (B, C, H, W) to ``size`` (unchanged when already there)."""
+    import torch.nn.functional as F
+
+    return x if tuple(x.shape[-2:]) == tuple(size) else F.interpolate(x, size=size, mode="area")
+
+
 @dataclass
 class DemoRecorder:
     """``on_step`` callback that stores, per step, exactly what the policy consumes plus the labels."""
@@ -335,7 +342,8 @@ class DemoRecorder:
             frame_cfg = get_model_config("fr").replace(num_actions=cfg.num_actions, frame_height=cfg.frame_height,
                                                        frame_width=cfg.frame_width, max_depth=cfg.max_depth)
             frame_goal = prepare_input(s.obs["rgb"], s.obs["depth"], s.obs["goal"], None, None, frame_cfg).goal
-            self.goal = {"goal_map": inp.goal[0].numpy().astype(np.float16),
+            goal_map = _resize_area(inp.goal, tuple(cfg.map_size))  # at map size whatever the model's goal size
+            self.goal = {"goal_map": goal_map[0].numpy().astype(np.float16),
                          "goal_frame": frame_goal[0].numpy().astype(np.float16)}
 
     def arrays(self) -> dict[str, np.ndarray]:
