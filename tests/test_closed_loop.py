@@ -242,3 +242,23 @@ def test_memory_lag_delays_frames_by_k_steps(box_env):
     a = lagged.render_maps(obs["pose"], obs["depth"], box_env.floor_z)
     b = plain.render_maps(obs["pose"], obs["depth"], box_env.floor_z)
     assert torch.equal(a.i_u, b.i_u) and torch.equal(a.i_cog, b.i_cog)
+
+
+@pytest.mark.parametrize("kind", ["geodesic", "explore"])
+def test_both_experts_label_dagger_rollouts_under_noise(box_env, kind):
+    """DAgger's mix (policy + expert) wrapped in noise injection, with either expert: labels are the expert's,
+    the executed actions differ from them somewhere, and the expert finishes the episode."""
+    from nue.policy import build_model
+    from nue.policy.agent import MixedAgent, PolicyAgent
+    from nue.policy.config import get_model_config
+
+    torch.manual_seed(0)
+    policy = PolicyAgent(build_model(get_model_config("fr").for_task(box_env.task)))
+    mixed = MixedAgent(policy, ExpertAgent(kind=kind), beta=0.5, policy_steps=15)
+    agent = NoisyAgent(mixed, 0.3, box_env.task.actions)
+    pairs = []
+    rec = run_episode(box_env, agent, episode_index=1, seed=2,
+                      on_step=lambda s: pairs.append((agent.last_expert_action, mixed.last_expert_action, s.action)))
+    assert rec.success
+    assert all(a == b for a, b, _ in pairs)
+    assert any(a != c for a, _, c in pairs)
