@@ -17,9 +17,8 @@ from nue.sim.env import ImageNavEnv
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import save_episodes
 from nue.sim.record import EpisodeRecord, Trajectory
-from nue.train.bc import swap_maps
 from nue.train.collect import CollectConfig, collect
-from nue.train.dataset import Batch, DemoSet
+from nue.train.dataset import Batch, DemoSet, swap_maps
 from nue.train.select import CandidateScore, pick_best
 from nue.policy.inputs import PolicyInput
 

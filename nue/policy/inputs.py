@@ -96,7 +96,7 @@ def _as_float_tensor(x, device) -> Tensor:
     return t.to(device=device, dtype=torch.float32)
 
 
-def _resize(x: Tensor, size: tuple[int, int]) -> Tensor:
+def resize_area(x: Tensor, size: tuple[int, int]) -> Tensor:
     """Area-resize (B, C, H, W) to ``size`` (no-op when already there)."""
     if tuple(x.shape[-2:]) == tuple(size):
         return x
@@ -162,9 +162,9 @@ def prepare_input(
         raise ValueError(f"depth: expected shape {(h, w)} (per frame) matching rgb, got {tuple(d.shape)}")
     d = torch.nan_to_num(d, nan=0.0, posinf=config.max_depth, neginf=0.0)
     d = d.clamp(0.0, config.max_depth) / config.max_depth
-    rgbd = _resize(torch.cat([rgb_t, d[:, None]], dim=1), config.frame_size)
+    rgbd = resize_area(torch.cat([rgb_t, d[:, None]], dim=1), config.frame_size)
 
-    goal_t = _resize(_image(goal, batched, device, "goal"), config.goal_size)
+    goal_t = resize_area(_image(goal, batched, device, "goal"), config.goal_size)
     if goal_t.shape[0] != b:
         raise ValueError(f"goal: batch {goal_t.shape[0]} does not match rgb batch {b}")
 
@@ -172,11 +172,11 @@ def prepare_input(
     if config.uses_i_u:
         if i_u is None:
             raise ValueError(f"model {config.name!r} reads the uncertainty map I_u, but i_u is None")
-        u = _resize(_map_tensor(i_u, batched, 1, device, "i_u"), config.map_size)
+        u = resize_area(_map_tensor(i_u, batched, 1, device, "i_u"), config.map_size)
     if config.uses_i_cog:
         if i_cog is None:
             raise ValueError(f"model {config.name!r} reads the feature map I_cog, but i_cog is None")
-        cog = _resize(_map_tensor(i_cog, batched, config.cog_channels, device, "i_cog"), config.map_size)
+        cog = resize_area(_map_tensor(i_cog, batched, config.cog_channels, device, "i_cog"), config.map_size)
     for name, m in (("i_u", u), ("i_cog", cog)):
         if m is not None and m.shape[0] != b:
             raise ValueError(f"{name}: batch {m.shape[0]} does not match rgb batch {b}")

@@ -24,7 +24,7 @@ import torch.nn.functional as F
 
 from nue.errors import CheckpointError, ConfigError, DataError
 from nue.train.checkpoint import load_checkpoint, policy_meta, save_checkpoint
-from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler, data_roots
+from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler, data_roots, swap_maps
 
 
 @dataclass(frozen=True)
@@ -118,29 +118,6 @@ def resolve_precision(precision: str, device: torch.device) -> str:
         return "bf16" if torch.ops.mkldnn._is_mkldnn_bf16_supported() else "fp32"
     except (AttributeError, RuntimeError):  # pragma: no cover - builds without oneDNN
         return "fp32"
-
-
-def swap_maps(batch, rng: np.random.Generator, p: float):
-    """Map dropout: each sample's (I_u, I_cog) replaced with probability ``p`` by another sample's.
-
-    ``batch.inp.i_u`` (N, 1, h, w) / ``i_cog`` (N, 64, h, w) for a flat batch (the leading dims are
-    flattened and restored). Draws from ``rng`` (the run's generator, so a resumed run repeats it).
-    """
-    inp = batch.inp
-    if p <= 0 or (inp.i_u is None and inp.i_cog is None):
-        return batch
-    ref = inp.i_cog if inp.i_cog is not None else inp.i_u
-    lead = ref.shape[:-3]
-    n = int(np.prod(lead))
-    drop = torch.as_tensor(rng.random(n) < p)
-    src = torch.as_tensor(rng.permutation(n))
-    idx = torch.where(drop, src, torch.arange(n))
-
-    def take(x):
-        return None if x is None else x.reshape(n, *x.shape[-3:])[idx].reshape(x.shape)
-
-    inp = dataclasses.replace(inp, i_u=take(inp.i_u), i_cog=take(inp.i_cog))
-    return dataclasses.replace(batch, inp=inp)
 
 
 def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainConfig, device: torch.device):

@@ -305,13 +305,6 @@ def _make_agent(spec: dict, env):
     return NoisyAgent(agent, spec["noise"], env.task.actions) if spec.get("noise") else agent
 
 
-def _resize_area(x, size):
-    """Area-resize (B, C, H, W) to ``size`` (unchanged when already there)."""
-    import torch.nn.functional as F
-
-    return x if tuple(x.shape[-2:]) == tuple(size) else F.interpolate(x, size=size, mode="area")
-
-
 @dataclass
 class DemoRecorder:
     """``on_step`` callback that stores, per step, exactly what the policy consumes plus the labels."""
@@ -323,7 +316,7 @@ class DemoRecorder:
 
     def __call__(self, s) -> None:
         from nue.policy.config import get_model_config
-        from nue.policy.inputs import prepare_input
+        from nue.policy.inputs import prepare_input, resize_area
 
         cfg = self.config
         maps = s.maps
@@ -342,7 +335,7 @@ class DemoRecorder:
             frame_cfg = get_model_config("fr").replace(num_actions=cfg.num_actions, frame_height=cfg.frame_height,
                                                        frame_width=cfg.frame_width, max_depth=cfg.max_depth)
             frame_goal = prepare_input(s.obs["rgb"], s.obs["depth"], s.obs["goal"], None, None, frame_cfg).goal
-            goal_map = _resize_area(inp.goal, tuple(cfg.map_size))  # at map size whatever the model's goal size
+            goal_map = resize_area(inp.goal, tuple(cfg.map_size))  # at map size whatever the model's goal size
             self.goal = {"goal_map": goal_map[0].numpy().astype(np.float16),
                          "goal_frame": frame_goal[0].numpy().astype(np.float16)}
 

@@ -7,6 +7,7 @@ is truncated or fails its checksum is reported by name and skipped, never silent
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import warnings
 from dataclasses import dataclass
@@ -136,6 +137,29 @@ class DemoSet:
         action = torch.as_tensor(np.array([self.episodes[e]["action"][t] for e, t in zip(ep, st)], dtype=np.int64))
         angle = torch.as_tensor(np.array([self.episodes[e]["goal_angle"][t] for e, t in zip(ep, st)], dtype=np.float32))
         return Batch(inp, action.reshape(shape).to(device), angle.reshape(shape).to(device))
+
+
+def swap_maps(batch, rng: np.random.Generator, p: float):
+    """Map dropout: each sample's (I_u, I_cog) replaced with probability ``p`` by another sample's.
+
+    ``batch.inp.i_u`` (N, 1, h, w) / ``i_cog`` (N, 64, h, w) for a flat batch (the leading dims are
+    flattened and restored). Draws from ``rng`` (the run's generator, so a resumed run repeats it).
+    """
+    inp = batch.inp
+    if p <= 0 or (inp.i_u is None and inp.i_cog is None):
+        return batch
+    ref = inp.i_cog if inp.i_cog is not None else inp.i_u
+    lead = ref.shape[:-3]
+    n = int(np.prod(lead))
+    drop = torch.as_tensor(rng.random(n) < p)
+    src = torch.as_tensor(rng.permutation(n))
+    idx = torch.where(drop, src, torch.arange(n))
+
+    def take(x):
+        return None if x is None else x.reshape(n, *x.shape[-3:])[idx].reshape(x.shape)
+
+    inp = dataclasses.replace(inp, i_u=take(inp.i_u), i_cog=take(inp.i_cog))
+    return dataclasses.replace(batch, inp=inp)
 
 
 class BufferSampler:
