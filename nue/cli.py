@@ -55,7 +55,8 @@ def episodes_generate(
     per_bin: int = typer.Option(10, help="Episodes per difficulty bin."),
     seed: int = typer.Option(0, help="Random seed."),
     task: str = typer.Option("paper", help="Task preset: paper, official or habitat."),
-    fmt: str = typer.Option("nue", "--format", help="nue (ours) or authors."),
+    fmt: str = typer.Option("nue", "--format", help="nue (ours), authors, or habitat (habitat-lab's PointNav/ImageNav "
+                            "dataset; gzip when OUT ends in .gz)."),
 ):
     """Sample episodes into the task's difficulty bins."""
     from nue.scene.scene import Scene
@@ -68,6 +69,36 @@ def episodes_generate(
     typer.echo(f"{len(eps)} episodes -> {out}")
 
 
+@episodes_app.command("convert")
+def episodes_convert(
+    source: Path = typer.Argument(..., help="Episode file in any format (ours, the authors', habitat's .json[.gz])."),
+    out: Path = typer.Option(..., help="Episode file to write."),
+    fmt: str = typer.Option("nue", "--format", help="nue, authors or habitat (gzip when OUT ends in .gz)."),
+    scene: Optional[Path] = typer.Option(None, help="Scene folder: checks content hashes, names the episodes' scene "
+                                         "and picks its episodes from a many-scene habitat file."),
+    task: str = typer.Option("paper", help="Task preset whose bins label episodes that carry no labels."),
+):
+    """Convert an episode file between formats (habitat's y-up frame <-> our z-up frame)."""
+    from nue.scene.scene import Scene
+    from nue.sim.episodes import load_episodes, save_episodes
+
+    s = Scene.load(scene) if scene is not None else None
+    eps = load_episodes(source, s, task)
+    save_episodes(out, eps, task, fmt=fmt)
+    typer.echo(f"{len(eps)} episodes -> {out}")
+
+
+def _echo_episode_checks(skipped, snapped: dict | None = None, source=None) -> None:
+    """Print the episodes left out by --skip-invalid, and those whose start or goal was snapped."""
+    if skipped:
+        typer.echo(f"skipped {len(skipped)} invalid episode(s) (--skip-invalid):")
+        for e in skipped:
+            typer.echo(f"  {e}")
+    if snapped:
+        parts = [f"{eid} (start {s.start:.3f} m, goal {s.goal:.3f} m)" for eid, s in snapped.items()]
+        typer.echo(f"{source}: snapped to navigable cells: {', '.join(parts)}")
+
+
 @app.command("expert")
 def expert(
     scene: Path = typer.Option(..., help="Scene folder."),
@@ -76,6 +107,7 @@ def expert(
     records: Optional[Path] = typer.Option(None, help="Write one JSON record per episode here."),
     kind: str = typer.Option("geodesic", help="geodesic (shortest path) or explore (frontier exploration until "
                              "the goal is in view, then geodesic)."),
+    skip_invalid: bool = typer.Option(False, help="Run the valid episodes and list the invalid ones instead of refusing the file."),
 ):
     """Run the geodesic (or exploring) expert on an episode file and print SR / SPL / DTS."""
     import json
@@ -85,13 +117,18 @@ def expert(
     from nue.scene.navgrid import NavGrid
     from nue.scene.scene import Scene
     from nue.sim.env import ImageNavEnv
-    from nue.sim.episodes import load_episodes
+    from nue.errors import EpisodeError
+    from nue.sim.episodes import read_episodes
 
     if kind not in EXPERT_KINDS:
         raise typer.BadParameter(f"expected one of {', '.join(EXPERT_KINDS)}", param_hint="--kind")
     s = Scene.load(scene)
     nav = NavGrid.from_scene(s)
-    eps = load_episodes(episodes, s, task, navgrid=nav)
+    loaded = read_episodes(episodes, s, task, navgrid=nav, skip_invalid=skip_invalid)
+    _echo_episode_checks(loaded.skipped, loaded.snapped, episodes)
+    eps = loaded.episodes
+    if not eps:
+        raise EpisodeError(episodes, "no valid episodes to run")
     env = ImageNavEnv(s, task, eps, navgrid=nav)
     agent = ExpertAgent(kind=kind)
     method = "expert" if kind == "geodesic" else f"expert-{kind}"
@@ -235,6 +272,7 @@ def eval_cmd(
     swap_maps: bool = typer.Option(False, help="Feed the maps of another episode (control)."),
     max_episodes: int = typer.Option(0, help="First N episodes per house only (0 = all)."),
     max_steps: int = typer.Option(0, help="Override the step limit (smoke runs only; 0 = the preset's)."),
+    skip_invalid: bool = typer.Option(False, help="Run the valid episodes and list the invalid ones instead of refusing their file."),
 ):
     """Evaluate checkpoints on the fixed validation episodes (resumes if rerun)."""
     from nue.evaluate.metrics import aggregate, format_table
@@ -242,8 +280,11 @@ def eval_cmd(
     from nue.evaluate.runner import EvalConfig, run_eval
 
     cfg = EvalConfig(episodes_dir=str(episodes_dir), scenes_root=str(scenes_root), task=task, seed=seed,
-                     device=device, swap_maps=swap_maps, max_episodes=max_episodes, max_steps=max_steps)
-    run_eval(method, out, cfg, workers=workers, ray_address=ray_address)
+                     device=device, swap_maps=swap_maps, max_episodes=max_episodes, max_steps=max_steps,
+                     skip_invalid=skip_invalid)
+    skipped: list = []
+    run_eval(method, out, cfg, workers=workers, ray_address=ray_address, skipped=skipped)
+    _echo_episode_checks(skipped)
     records = load_records(out)
     for name in sorted({r.method for r in records}):
         typer.echo(f"## {name}\n" + format_table(aggregate([r for r in records if r.method == name])))

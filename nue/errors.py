@@ -40,3 +40,13 @@ class CheckpointError(NueError):
 
 class DataError(NueError):
     """A demonstration or record file that is corrupt or truncated."""
+
+
+class InvalidEpisodesError(EpisodeError):
+    """Episodes of one file that cannot be run, all named in one line: ``<file>: episode <id>: <problem>; ...``."""
+
+    def __init__(self, where: str | Path | None, invalid: list[tuple[str, str]]):
+        self.invalid = list(invalid)
+        """(episode id, problem) of each invalid episode, in file order."""
+        listed = "; ".join(f"episode {eid}: {problem}" for eid, problem in self.invalid)
+        super().__init__(where, listed if len(self.invalid) == 1 else f"{len(self.invalid)} invalid episodes: {listed}")

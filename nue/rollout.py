@@ -77,7 +77,7 @@ class ExpertAgent:
                                               self.config, floor_z=env.floor_z)
             else:
                 self.expert = GeodesicExpert(env.navgrid, env.task, self.config)
-        self.expert.reset(env.goal_xy)
+        self.expert.reset(env.nav_goal_xy)
 
     def act(self, obs, maps) -> int:
         if self.kind == "explore":

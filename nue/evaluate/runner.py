@@ -50,6 +50,8 @@ class EvalConfig:
     """Use only the first N episodes of each house (0 = all)."""
     max_steps: int = 0
     """Override the preset's step limit (0 = keep it); for smoke runs only — records are not comparable."""
+    skip_invalid: bool = False
+    """Leave out episodes that cannot run (listed by :func:`plan_eval`) instead of refusing their file."""
 
 
 def parse_method(spec: str) -> tuple[str, str | None]:
@@ -65,25 +67,38 @@ def parse_method(spec: str) -> tuple[str, str | None]:
     return load_checkpoint(spec)["model_config"]["name"], spec
 
 
-def plan_eval(methods: list[str], cfg: EvalConfig) -> list[Job]:
-    from nue.scene.generator import ensure_house
-    from nue.scene.scene import Scene
-    from nue.sim.episodes import load_episodes
-
-    files = sorted(Path(cfg.episodes_dir).glob("*.json"))
+def episode_files(folder) -> list[Path]:
+    """The episode files of a folder (``*.json``, habitat's ``*.json.gz``), sorted; DataError if none."""
+    files = sorted([*Path(folder).glob("*.json"), *Path(folder).glob("*.json.gz")])
     if not files:
-        raise DataError(cfg.episodes_dir, "no episode files (*.json)")
+        raise DataError(folder, "no episode files (*.json, *.json.gz)")
+    return files
+
+
+def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) -> list[Job]:
+    """One job per (episode, method). Every episode is validated on its house's navigation grid; with
+    ``cfg.skip_invalid`` invalid ones are left out and appended to ``skipped``
+    (:class:`~nue.sim.episodes.InvalidEpisode`), else all of a file are named in one error."""
+    from nue.scene.generator import ensure_house
+    from nue.scene.navgrid import NavGrid
+    from nue.scene.scene import Scene
+    from nue.sim.episodes import read_episodes
+
+    files = episode_files(cfg.episodes_dir)
     parsed = [parse_method(m) for m in methods]
     jobs = []
     for f in files:
-        name = f.stem
+        name = f.name.removesuffix(".gz").removesuffix(".json")
         try:
             index = int(name.rsplit("_", 1)[1])
             folder = ensure_house(cfg.split, index, cfg.scenes_root)
         except (ValueError, IndexError):
             folder = Path(cfg.scenes_root) / name
         scene = Scene.load(folder)
-        eps = load_episodes(f, scene, cfg.task)
+        loaded = read_episodes(f, scene, cfg.task, navgrid=NavGrid.from_scene(scene), skip_invalid=cfg.skip_invalid)
+        if skipped is not None:
+            skipped.extend(loaded.skipped)
+        eps = loaded.episodes
         if cfg.max_episodes:
             eps = eps[: cfg.max_episodes]
         for i, ep in enumerate(eps):
@@ -127,11 +142,12 @@ def append_record(path: Path, record: dict) -> None:
 
 
 def run_eval(methods: list[str], out, cfg: EvalConfig, workers: int = 1, ray_address: str | None = None,
-             progress: bool = True) -> Path:
-    """Evaluate ``methods`` (checkpoint paths, ``name=path`` or ``expert``); records appended to ``out``."""
+             progress: bool = True, skipped: list | None = None) -> Path:
+    """Evaluate ``methods`` (checkpoint paths, ``name=path`` or ``expert``); records appended to ``out``.
+    Episodes left out by ``cfg.skip_invalid`` are appended to ``skipped``."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    jobs = plan_eval(methods, cfg)
+    jobs = plan_eval(methods, cfg, skipped)
     done = done_keys(out)
     run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
              is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="eval", progress=progress)

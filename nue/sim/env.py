@@ -4,7 +4,11 @@ Observation: ``rgb`` (H, W, 3) uint8, ``depth`` (H, W, 1) float32 metres (z-dept
 ``pose`` (x, y, yaw) float32 and ``goal`` (H, W, 3) uint8, the photo taken at the goal pose. Actions
 and rules come from a task preset (:mod:`nue.sim.task`). The robot is a disc that never enters
 non-traversable space: a blocked forward move slides along the obstacle (or stops, per preset) and
-counts one collision. Success ends the episode (``terminated``); the step limit truncates it.
+counts one collision. An episode's start or goal off the navigable cells is snapped
+(:meth:`nue.scene.navgrid.NavGrid.snap`): the robot starts at the snapped start, geodesics and the
+expert use the snapped goal, the goal photo and Euclidean distances use the goal as given; records
+then carry ``extra["start_snap"]`` / ``extra["goal_snap"]`` (metres). Success ends the episode
+(``terminated``); the step limit truncates it.
 Reward (for RL users; imitation learning ignores it): decrease of geodesic distance to the goal,
 +2.5 on success, -0.01 per step.
 """
@@ -89,8 +93,16 @@ class ImageNavEnv(gym.Env):
             ep = self._random_episode()
         self.episode = ep
         self.pose = np.asarray(ep.start_pose, dtype=np.float64)
+        start_xy, start_snap = self.navgrid.snap(self.pose[:2])
+        self.pose[:2] = start_xy  # the start itself unless it had to be snapped
         self.goal_xy = np.asarray(ep.goal_position[:2], dtype=np.float64)
-        self._field = self.navgrid.distance_field(self.goal_xy)
+        """The goal as given (Euclidean distance, goal angle; the goal photo is taken here)."""
+        goal_xy, goal_snap = self.navgrid.snap(self.goal_xy, on_cell=True)
+        self.nav_goal_xy = np.asarray(goal_xy, dtype=np.float64)
+        """The goal for geodesics and the expert: ``goal_xy`` unless it had to be snapped to a navigable cell."""
+        self._field = self.navgrid.distance_field(self.nav_goal_xy)
+        self.snap = {k: round(v, 6) for k, v in (("start_snap", start_snap), ("goal_snap", goal_snap)) if v > 0}
+        """Metres the start / goal were snapped to navigable cells (only those that were), for the record."""
         self.goal_image, _ = self.renderer.render(ep.goal_pose, self.floor_z)
         self.steps = 0
         self.collisions = 0
@@ -187,7 +199,7 @@ class ImageNavEnv(gym.Env):
             path_type=ep.path_type,
             method=method,
             wall_time=time.perf_counter() - self._t0,
-            extra={TRAJECTORY_KEY: self.trajectory_so_far().encode(), **extra},
+            extra={TRAJECTORY_KEY: self.trajectory_so_far().encode(), **self.snap, **extra},
         )
 
     def trajectory_so_far(self) -> Trajectory:

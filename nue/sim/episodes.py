@@ -2,11 +2,14 @@
 
 Our JSON (``nue-episodes/1``) stores habitat-style fields per episode plus the scene's content hash
 and the task preset; the authors' format is a bare list of
-``{startXYZ, startQuat, endXYZ, endQuat, dist, pathDist}`` (quaternions x, y, z, w; z up).
+``{startXYZ, startQuat, endXYZ, endQuat, dist, pathDist}`` (quaternions x, y, z, w; z up);
+habitat-lab's datasets (y up) are converted by :mod:`nue.sim.habitat_format`. Reading checks every
+episode and reports all invalid ones of a file together (or skips them, listed, on request).
 """
 
 from __future__ import annotations
 
+import gzip
 import json
 import math
 import os
@@ -17,7 +20,8 @@ from typing import Sequence
 
 import numpy as np
 
-from nue.errors import EpisodeError
+from nue.errors import EpisodeError, InvalidEpisodesError
+from nue.sim import habitat_format as habitat
 from nue.sim.camera import quat_from_yaw, yaw_from_quat
 from nue.sim.task import TaskConfig, get_task
 
@@ -79,33 +83,72 @@ class Episode:
         )
 
 
-def check_finite(ep: Episode, where) -> None:
-    """Raise :class:`EpisodeError` if a pose of ``ep`` holds NaN or inf."""
+def finite_problem(ep: Episode) -> str | None:
+    """What is wrong with ``ep``'s numbers (a pose holding NaN or inf), or None."""
     for name in ("start_position", "start_rotation", "goal_position", "goal_rotation"):
         if not all(math.isfinite(v) for v in getattr(ep, name)):
-            raise EpisodeError(where, f"episode {ep.episode_id}: {name} is not finite: {list(getattr(ep, name))}")
+            return f"{name} is not finite: {list(getattr(ep, name))}"
+    return None
 
 
-def validate_episode(ep: Episode, navgrid, where=None) -> None:
-    """Raise :class:`EpisodeError` for a NaN pose, a start or goal outside free space, or an unreachable goal."""
-    where = where or f"episode {ep.episode_id}"
-    check_finite(ep, where)
-    if not navgrid.is_free(ep.start_position[:2]):
-        raise EpisodeError(where, f"episode {ep.episode_id}: start {ep.start_position[:2]} is inside an obstacle or wall")
-    if not np.isfinite(navgrid.geodesic_distance(ep.start_position[:2], ep.goal_position[:2])):
-        raise EpisodeError(where, f"episode {ep.episode_id}: goal {ep.goal_position[:2]} is unreachable from the start")
+@dataclass(frozen=True)
+class Snap:
+    """How far an episode's start and goal are moved to navigable cells for geodesics and the expert."""
+
+    start: float = 0.0
+    """Metres from the start to where the robot is placed (0 = the start is navigable)."""
+    goal: float = 0.0
+    """Metres from the goal to the cell geodesics and the expert aim at (0 = its cell is navigable);
+    the goal photo and Euclidean distances still use the goal itself."""
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
+def check_episode(ep: Episode, navgrid) -> tuple[Snap | None, str | None]:
+    """``(snap, None)`` if ``ep`` is usable on ``navgrid``, else ``(None, problem)``.
+
+    A start or goal off the navigable cells but on the floor and within the grid's snap tolerance is
+    snapped (:meth:`~nue.scene.navgrid.NavGrid.snap`); the episode keeps its positions, ``snap``
+    says how far they are moved. Problems: a NaN pose, a start or goal inside an obstacle or wall or
+    too far from navigable cells, a goal unreachable from the start."""
+    problem = finite_problem(ep)
+    if problem:
+        return None, problem
+    tol = navgrid.config.snap_tolerance
+    start, start_d = navgrid.snap(ep.start_position[:2])
+    goal, goal_d = navgrid.snap(ep.goal_position[:2], on_cell=True)
+    for name, xy, point, d in (("start", ep.start_position, start, start_d), ("goal", ep.goal_position, goal, goal_d)):
+        if point is None:
+            where = (f"inside an obstacle or wall ({d:.2f} m from the nearest navigable cell)" if not navgrid.on_floor(xy[:2])
+                     else f"{d:.2f} m from the nearest navigable cell (snap tolerance {tol:g} m)")
+            verb = "is unreachable: " if name == "goal" else "is "
+            return None, f"{name} {list(xy[:2])} {verb}{where}"
+    if not np.isfinite(navgrid.geodesic_distance(start, goal)):
+        return None, f"goal {list(ep.goal_position[:2])} is unreachable from the start"
+    return Snap(start_d, goal_d), None
+
+
+def validate_episode(ep: Episode, navgrid, where=None) -> Snap:
+    """How far ``ep``'s start and goal are snapped (see :func:`check_episode`); :class:`EpisodeError` if unusable."""
+    snap, problem = check_episode(ep, navgrid)
+    if problem:
+        raise EpisodeError(where or f"episode {ep.episode_id}", f"episode {ep.episode_id}: {problem}")
+    return snap
+
+
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
     os.replace(tmp, path)
 
 
+def _atomic_write_text(path: Path, text: str) -> None:
+    _atomic_write_bytes(path, text.encode())
+
+
 def save_episodes(path, episodes: Sequence[Episode], task: TaskConfig | str = "paper", fmt: str = "nue") -> Path:
-    """Write episodes atomically, in our format (``nue``) or the authors' (``authors``)."""
+    """Write episodes atomically, in our format (``nue``), the authors' (``authors``) or habitat-lab's
+    (``habitat``; gzip-compressed when ``path`` ends in ``.gz``, see :mod:`nue.sim.habitat_format`)."""
     path = Path(path)
     if fmt == "authors":
         items = [
@@ -121,82 +164,154 @@ def save_episodes(path, episodes: Sequence[Episode], task: TaskConfig | str = "p
         ]
         _atomic_write_text(path, json.dumps(items, indent=1))
         return path
+    if fmt == "habitat":
+        radius = get_task(task).success_radius
+        text = json.dumps({"episodes": [habitat.habitat_from_fields(e, radius) for e in episodes]})
+        if path.name.endswith(".gz"):
+            _atomic_write_bytes(path, gzip.compress(text.encode(), mtime=0))
+        else:
+            _atomic_write_bytes(path, text.encode())
+        return path
     if fmt != "nue":
-        raise EpisodeError(path, f"unknown episode format {fmt!r} (use 'nue' or 'authors')")
+        raise EpisodeError(path, f"unknown episode format {fmt!r} (use 'nue', 'authors' or 'habitat')")
     doc = {"format": FORMAT, "task": get_task(task).name, "episodes": [asdict(e) for e in episodes]}
     _atomic_write_text(path, json.dumps(doc, indent=1))
     return path
 
 
+@dataclass(frozen=True)
+class InvalidEpisode:
+    """An episode of a file that cannot be run: which file, which episode, what is wrong."""
+
+    file: str
+    """The episode file."""
+    episode_id: str
+    """The episode's id (for an unparsable entry: its index in the file)."""
+    problem: str
+    """What is wrong, one line."""
+
+    def __str__(self) -> str:
+        return f"{self.file}: episode {self.episode_id}: {self.problem}"
+
+
+@dataclass(frozen=True)
+class EpisodeSet:
+    """The episodes read from one file, and the invalid ones left out (only with ``skip_invalid``)."""
+
+    episodes: list[Episode]
+    """Usable episodes, in file order, positions as in the file."""
+    skipped: list[InvalidEpisode]
+    """Episodes left out, in file order."""
+    snapped: dict[str, Snap]
+    """Episode id -> its snap, for the (validated) episodes whose start or goal is snapped."""
+
+
 def load_episodes(
     path, scene=None, task: TaskConfig | str = "paper", scene_name: str | None = None, navgrid=None
 ) -> list[Episode]:
-    """Read an episode file in either format (detected from its content).
+    """The episodes of a file (see :func:`read_episodes`); any invalid episode raises :class:`InvalidEpisodesError`."""
+    return read_episodes(path, scene, task, scene_name, navgrid).episodes
+
+
+def read_episodes(
+    path, scene=None, task: TaskConfig | str = "paper", scene_name: str | None = None, navgrid=None,
+    skip_invalid: bool = False,
+) -> EpisodeSet:
+    """Read an episode file in any of the three formats (detected from its content; ``.gz`` is gunzipped).
 
     With ``scene`` (a :class:`~nue.scene.scene.Scene`), episodes recording a different content hash
-    are refused, and the authors' episodes (which carry no labels) get their scene name, difficulty
-    and path type from ``task``'s bins. With ``navgrid``, every episode is validated (start in free
-    space, goal reachable) and a bad one is reported with this file's name.
+    are refused, and episodes without labels (the authors', habitat's) get their scene name,
+    difficulty and path type from ``task``'s bins; a habitat file holding several scenes gives the
+    episodes of this one. Every episode is checked (a malformed entry, a NaN pose and, with
+    ``navgrid``, the checks of :func:`check_episode`; snapped ones are listed in ``snapped``).
+    Invalid episodes are all named in one :class:`InvalidEpisodesError` (file, ids, problems), or
+    with ``skip_invalid`` left out and listed in ``skipped``.
     """
     path = Path(path)
     if not path.is_file():
         raise EpisodeError(path, "episode file not found")
     try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raw = path.read_bytes()
+        doc = json.loads(gzip.decompress(raw) if raw[:2] == b"\x1f\x8b" else raw)
+    except (json.JSONDecodeError, UnicodeDecodeError, OSError, EOFError) as exc:
         raise EpisodeError(path, f"not valid JSON ({exc})") from None
     task = get_task(task)
     name = scene_name or (scene.name if scene is not None else "")
     if isinstance(doc, list):
-        episodes = [_from_authors(item, i, name, task, path) for i, item in enumerate(doc)]
+        parsed = [_from_authors(item, i, name, task) for i, item in enumerate(doc)]
     elif isinstance(doc, dict) and doc.get("format") == FORMAT:
-        try:
-            episodes = [Episode.from_dict(e) for e in doc["episodes"]]
-        except (KeyError, TypeError) as exc:
-            raise EpisodeError(path, f"malformed episode entry ({exc})") from None
+        parsed = [_from_ours(item, i) for i, item in enumerate(doc.get("episodes") or [])]
+    elif habitat.is_habitat(doc):
+        parsed = _from_habitat(doc["episodes"], name, task, path)
     else:
-        raise EpisodeError(path, f"unknown episode file format (expected a list or format {FORMAT!r})")
-    for e in episodes:
-        check_finite(e, path)
+        raise EpisodeError(path, f"unknown episode file format (expected a list, format {FORMAT!r} or habitat's)")
     if scene is not None:
-        for e in episodes:
-            if e.scene_hash and e.scene_hash != scene.content_hash:
+        for e in parsed:
+            if isinstance(e, Episode) and e.scene_hash and e.scene_hash != scene.content_hash:
                 raise EpisodeError(
                     path,
                     f"episode {e.episode_id} was made for scene content {e.scene_hash}, "
                     f"but {scene.path} has content {scene.content_hash} (the scene changed)",
                 )
-    if navgrid is not None:
-        for e in episodes:
-            validate_episode(e, navgrid, where=path)
-    return episodes
+    episodes, invalid, snapped = [], [], {}
+    for e in parsed:
+        if isinstance(e, InvalidEpisode):
+            invalid.append(replace(e, file=str(path)))
+            continue
+        snap, problem = check_episode(e, navgrid) if navgrid is not None else (Snap(), finite_problem(e))
+        if problem:
+            invalid.append(InvalidEpisode(str(path), e.episode_id, problem))
+            continue
+        episodes.append(e)
+        if snap != Snap():
+            snapped[e.episode_id] = snap
+    if invalid and not skip_invalid:
+        raise InvalidEpisodesError(path, [(e.episode_id, e.problem) for e in invalid])
+    return EpisodeSet(episodes, invalid, snapped)
 
 
+def _from_ours(item, i: int) -> Episode | InvalidEpisode:
+    try:
+        return Episode.from_dict(item)
+    except (KeyError, TypeError) as exc:
+        eid = item.get("episode_id", i) if isinstance(item, dict) else i
+        return InvalidEpisode("", str(eid), f"malformed episode entry ({exc})")
 
 
-def _from_authors(item, i: int, scene: str, task: TaskConfig, path) -> Episode:
+def _labelled(fields: dict, task: TaskConfig) -> Episode:
+    """An episode from its fields, with difficulty and path type from ``task``'s bins."""
+    return relabel(Episode(**fields), task)
+
+
+def _from_habitat(items: list, name: str, task: TaskConfig, path) -> list[Episode | InvalidEpisode]:
+    scenes = [habitat.scene_of(item) if isinstance(item, dict) else "" for item in items]
+    keep = range(len(items))
+    if name and len(set(scenes)) > 1:
+        keep = [i for i, s in enumerate(scenes) if s == name]
+        if not keep:
+            raise EpisodeError(path, f"no episodes of scene {name!r} (the file has {', '.join(sorted(set(scenes)))})")
+    out: list[Episode | InvalidEpisode] = []
+    for i in keep:
+        item = items[i]
+        try:
+            out.append(_labelled(habitat.fields_from_habitat(item, name or scenes[i]), task))
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            eid = item.get("episode_id", i) if isinstance(item, dict) else i
+            out.append(InvalidEpisode("", str(eid), f"malformed habitat episode ({type(exc).__name__}: {exc})"))
+    return out
+
+
+def _from_authors(item, i: int, scene: str, task: TaskConfig) -> Episode | InvalidEpisode:
     try:
         start, sq, goal, gq = (tuple(float(v) for v in item[k]) for k in ("startXYZ", "startQuat", "endXYZ", "endQuat"))
         dist = float(item.get("dist", math.hypot(goal[0] - start[0], goal[1] - start[1])))
         path_dist = float(item.get("pathDist", dist))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise EpisodeError(path, f"entry {i}: malformed authors' episode ({exc})") from None
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        return InvalidEpisode("", str(i), f"malformed authors' episode ({exc})")
     if len(start) != 3 or len(goal) != 3 or len(sq) != 4 or len(gq) != 4:
-        raise EpisodeError(path, f"entry {i}: positions need 3 values and quaternions 4")
-    key = dist if task.bins.key == "euclidean" else path_dist
-    ratio = path_dist / dist if dist > 0 else 1.0
-    return Episode(
-        episode_id=str(i),
-        scene=scene,
-        start_position=start,
-        start_rotation=sq,
-        goal_position=goal,
-        goal_rotation=gq,
-        euclidean_distance=dist,
-        geodesic_distance=path_dist,
-        difficulty=task.bins.classify(key) or "",
-        path_type="straight" if ratio < task.bins.straight_ratio else "curved",
-    )
+        return InvalidEpisode("", str(i), "positions need 3 values and quaternions 4")
+    return _labelled(dict(episode_id=str(i), scene=scene, start_position=start, start_rotation=sq, goal_position=goal,
+                          goal_rotation=gq, euclidean_distance=dist, geodesic_distance=path_dist), task)
 
 
 def relabel(ep: Episode, task: TaskConfig) -> Episode:
