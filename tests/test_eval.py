@@ -105,3 +105,29 @@ def test_mismatched_checkpoint_is_refused(tmp_path, episodes_dir):
     res = _eval("-c", f"nue={stale}", "--out", tmp_path / "r2.jsonl", "--episodes-dir", episodes_dir,
                 "--scenes-root", FIXTURES, "--max-steps", 40)
     assert res.returncode == 2 and "scene box_room has content" in res.stderr
+
+
+def test_resume_refuses_records_made_with_other_settings(tmp_path, episodes_dir):
+    """A rerun into the same file with another checkpoint under the same name, or another step limit,
+    is refused with one line naming the file; the same settings resume (nothing is rerun)."""
+    a = _checkpoint(tmp_path / "a.pt")
+    b = _checkpoint(tmp_path / "b.pt")
+    state = torch.load(b, weights_only=False)
+    state["step"] = 1  # another file under the same method name
+    torch.save(state, b)
+    out = tmp_path / "r.jsonl"
+    common = ["--out", out, "--episodes-dir", episodes_dir, "--scenes-root", FIXTURES, "--max-episodes", 1]
+    first = _eval("-c", f"nue={a}", *common, "--max-steps", 20)
+    assert first.returncode == 0, first.stderr
+    before = out.read_text()
+    rec = json.loads(before.splitlines()[0])
+    assert rec["extra"]["settings"]["max_steps"] == 20 and rec["extra"]["settings"]["task"] == "paper"
+    for args, field in (([f"nue={a}", "--max-steps", 30], "max_steps"),
+                        ([f"nue={b}", "--max-steps", 20], "agent")):
+        res = _eval("-c", *args, *common)
+        assert res.returncode == 2, res.stderr
+        line = res.stderr.strip()
+        assert "\n" not in line and str(out) in line and field in line and "Traceback" not in line
+        assert out.read_text() == before  # nothing appended
+    again = _eval("-c", f"nue={a}", *common, "--max-steps", 20)
+    assert again.returncode == 0 and out.read_text() == before

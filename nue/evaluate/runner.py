@@ -11,6 +11,7 @@ the same house (a control that shows whether the memory is used).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import os
 import time
@@ -86,6 +87,7 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
 
     files = episode_files(cfg.episodes_dir)
     parsed = [parse_method(m) for m in methods]
+    digests = {ckpt: file_sha256(ckpt) for _, ckpt in parsed if ckpt is not None}
     jobs = []
     for f in files:
         name = f.name.removesuffix(".gz").removesuffix(".json")
@@ -105,13 +107,77 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
             other = eps[(i + 1) % len(eps)] if cfg.swap_maps else None
             for method, ckpt in parsed:
                 key = f"{method}{'+swap' if cfg.swap_maps else ''}/{scene.name}/{ep.episode_id}"
-                jobs.append(Job(key, {
+                settings = run_settings(cfg, digests.get(ckpt, method), asdict(ep), scene.content_hash)
+                jobs.append(Job(key, {"settings": settings,
                     "method": method + ("+swap" if cfg.swap_maps else ""), "checkpoint": ckpt, "scene": str(folder),
                     "episode": asdict(ep), "other": asdict(other) if other else None, "task": cfg.task,
                     "seed": episode_seed(cfg.seed, scene.name, ep.episode_id), "device": cfg.device,
                     "coverage": cfg.coverage, "max_steps": cfg.max_steps,
                 }))
     return jobs
+
+
+def file_sha256(path: str) -> str:
+    """sha256 (16 hex digits) of a file's bytes; a checkpoint's identity for resuming."""
+    h = hashlib.sha256()
+    try:
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    except OSError as e:
+        raise CheckpointError(path, f"cannot read ({e.strerror or e})") from None
+    return h.hexdigest()[:16]
+
+
+def run_settings(cfg: EvalConfig, agent: str, episode: dict, scene_hash: str) -> dict:
+    """Everything that changes an episode's record, stored in it (``extra['settings']``) and compared on
+    resume: the checkpoint's content hash (or the expert's name), task preset, step limit, seed, maps
+    swap, coverage, the episode itself and the scene's content hash. The device is left out."""
+    ep = hashlib.sha256(json.dumps(episode, sort_keys=True).encode()).hexdigest()[:16]
+    return {"agent": agent, "task": cfg.task, "max_steps": cfg.max_steps, "seed": cfg.seed,
+            "swap_maps": cfg.swap_maps, "coverage": cfg.coverage, "episode": ep, "scene": scene_hash}
+
+
+def recorded_settings(path: Path) -> dict[str, dict | None]:
+    """Record key -> its stored run settings (None for records made before settings were stored)."""
+    return {r["extra"]["key"]: r["extra"].get("settings") for r in _read_records(path)}
+
+
+def check_resumable(path: Path, jobs: list[Job]) -> set[str]:
+    """Keys of ``jobs`` already recorded in ``path`` with the same settings; raises :class:`DataError`
+    if any of them was recorded with different settings (never silently reused)."""
+    old = recorded_settings(path)
+    clash: dict[str, list[str]] = {}
+    for job in jobs:
+        if job.key not in old:
+            continue
+        before, now = old[job.key], job.payload["settings"]
+        diff = ["settings (an older record)"] if before is None else sorted(k for k in now if before.get(k) != now[k])
+        if diff:
+            clash.setdefault(", ".join(diff), []).append(job.key)
+    if clash:
+        why, keys = next(iter(clash.items()))
+        n = sum(len(v) for v in clash.values())
+        raise DataError(path, f"{n} recorded episode(s) were run with other settings ({why} differ, e.g. "
+                              f"{keys[0]}); use another --out or another method name")
+    return {job.key for job in jobs if job.key in old}
+
+
+def _read_records(path: Path) -> list[dict]:
+    if not path.is_file():
+        return []
+    done_keys(path)  # cut a torn last line
+    out = []
+    for i, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+            rec["extra"]["key"]
+        except (ValueError, KeyError, TypeError):
+            raise DataError(path, f"line {i} is not an evaluation record") from None
+        out.append(rec)
+    return out
 
 
 def done_keys(path: Path) -> set[str]:
@@ -148,7 +214,7 @@ def run_eval(methods: list[str], out, cfg: EvalConfig, workers: int = 1, ray_add
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     jobs = plan_eval(methods, cfg, skipped)
-    done = done_keys(out)
+    done = check_resumable(out, jobs)
     run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
              is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="eval", progress=progress)
     return out
@@ -219,7 +285,7 @@ def eval_episode(job: Job) -> dict:
     p = job.payload
     env = _env(p)
     episode = Episode.from_dict(p["episode"])
-    extra = {"key": job.key, "seed": p["seed"], "checkpoint": p["checkpoint"]}
+    extra = {"key": job.key, "seed": p["seed"], "checkpoint": p["checkpoint"], "settings": p["settings"]}
     if p["checkpoint"] is None:
         kind = EXPERT_METHODS.get(p["method"].split("+")[0], "geodesic")
         agent, memory = ExpertAgent(kind=kind), None
