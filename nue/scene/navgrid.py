@@ -151,7 +151,7 @@ class NavGrid:
         try:
             import skfmm
         except ImportError:
-            raise ConfigError(None, "geodesic='fmm' needs scikit-fmm (pip install scikit-fmm)") from None
+            raise ConfigError(None, "geodesic='fmm' needs scikit-fmm (pip install 'nue[geodesic]')") from None
         rr, cc = np.indices(self.free.shape)
         centre = np.hypot(rr - cell[0], cc - cell[1])
         phi = np.ma.MaskedArray(centre - _FMM_SEED_RADIUS, mask=~self.free)
