@@ -73,7 +73,7 @@ def _episode_file(tmp_path, start, goal, name="eps.json"):
     [
         ([-1.0, 0.0, 0.0], [2.0, 2.0, 0.0], ["eps.json", "episode 0", "inside an obstacle"]),
         ([0.0, 0.0, 0.0], [1.0, -2.0, 0.0], ["eps.json", "episode 0", "unreachable"]),
-        ([0.0, float("nan"), 0.0], [2.0, 2.0, 0.0], ["eps.json", "start_position is not finite"]),
+        ([0.0, float("nan"), 0.0], [2.0, 2.0, 0.0], ["eps.json", "episode 0", "startXYZ is not finite"]),
     ],
     ids=["start-in-wall", "unreachable-goal", "nan-pose"],
 )

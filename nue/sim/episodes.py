@@ -21,6 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from nue.errors import EpisodeError, InvalidEpisodesError
+from nue.sim import episode_fields as fields_
 from nue.sim import habitat_format as habitat
 from nue.sim.camera import quat_from_yaw, yaw_from_quat
 from nue.sim.task import TaskConfig, get_task
@@ -83,12 +84,11 @@ class Episode:
         )
 
 
-def finite_problem(ep: Episode) -> str | None:
-    """What is wrong with ``ep``'s numbers (a pose holding NaN or inf), or None."""
-    for name in ("start_position", "start_rotation", "goal_position", "goal_rotation"):
-        if not all(math.isfinite(v) for v in getattr(ep, name)):
-            return f"{name} is not finite: {list(getattr(ep, name))}"
-    return None
+def finite_problem(ep: Episode, floors=None) -> str | None:
+    """What is wrong with ``ep``'s poses without a map (NaN, a rotation that is not a unit quaternion
+    about +z, start = goal; with ``floors``, a z off every floor), or None; see
+    :func:`nue.sim.episode_fields.geometry_problem`."""
+    return fields_.geometry_problem(ep, floors)
 
 
 @dataclass(frozen=True)
@@ -102,14 +102,15 @@ class Snap:
     the goal photo and Euclidean distances still use the goal itself."""
 
 
-def check_episode(ep: Episode, navgrid) -> tuple[Snap | None, str | None]:
+def check_episode(ep: Episode, navgrid, floors=None) -> tuple[Snap | None, str | None]:
     """``(snap, None)`` if ``ep`` is usable on ``navgrid``, else ``(None, problem)``.
 
     A start or goal off the navigable cells but on the floor and within the grid's snap tolerance is
     snapped (:meth:`~nue.scene.navgrid.NavGrid.snap`); the episode keeps its positions, ``snap``
-    says how far they are moved. Problems: a NaN pose, a start or goal inside an obstacle or wall or
+    says how far they are moved. Problems: those of :func:`finite_problem` (z checked against
+    ``floors`` if given), a start or goal inside an obstacle or wall or
     too far from navigable cells, a goal unreachable from the start."""
-    problem = finite_problem(ep)
+    problem = finite_problem(ep, floors)
     if problem:
         return None, problem
     tol = navgrid.config.snap_tolerance
@@ -130,7 +131,7 @@ def validate_episode(ep: Episode, navgrid, where=None) -> Snap:
     """How far ``ep``'s start and goal are snapped (see :func:`check_episode`); :class:`EpisodeError` if unusable."""
     snap, problem = check_episode(ep, navgrid)
     if problem:
-        raise EpisodeError(where or f"episode {ep.episode_id}", f"episode {ep.episode_id}: {problem}")
+        raise EpisodeError(where, f"episode {ep.episode_id}: {problem}")
     return snap
 
 
@@ -240,11 +241,20 @@ def read_episodes(
     if isinstance(doc, list):
         parsed = [_from_authors(item, i, name, task) for i, item in enumerate(doc)]
     elif isinstance(doc, dict) and doc.get("format") == FORMAT:
-        parsed = [_from_ours(item, i) for i, item in enumerate(doc.get("episodes") or [])]
+        if doc.get("task", task.name) != task.name:
+            raise EpisodeError(path, f"episodes made for task preset {doc['task']!r}, but this run uses {task.name!r} "
+                                     f"(pass --task {doc['task']})")
+        items = doc.get("episodes")
+        if not isinstance(items, list):
+            raise EpisodeError(path, f"'episodes' must be a list, got {fields_._describe(items)}")
+        parsed = [_from_ours(item, i) for i, item in enumerate(items)]
     elif habitat.is_habitat(doc):
         parsed = _from_habitat(doc["episodes"], name, task, path)
     else:
         raise EpisodeError(path, f"unknown episode file format (expected a list, format {FORMAT!r} or habitat's)")
+    if not parsed:
+        raise EpisodeError(path, "the file holds no episodes")
+    parsed = _mark_duplicates(parsed)
     if scene is not None:
         for e in parsed:
             if isinstance(e, Episode) and e.scene_hash and e.scene_hash != scene.content_hash:
@@ -253,12 +263,14 @@ def read_episodes(
                     f"episode {e.episode_id} was made for scene content {e.scene_hash}, "
                     f"but {scene.path} has content {scene.content_hash} (the scene changed)",
                 )
+    floors = scene.floor_heights if scene is not None else None
     episodes, invalid, snapped = [], [], {}
     for e in parsed:
         if isinstance(e, InvalidEpisode):
             invalid.append(replace(e, file=str(path)))
             continue
-        snap, problem = check_episode(e, navgrid) if navgrid is not None else (Snap(), finite_problem(e))
+        snap, problem = (check_episode(e, navgrid, floors) if navgrid is not None
+                         else (Snap(), finite_problem(e, floors)))
         if problem:
             invalid.append(InvalidEpisode(str(path), e.episode_id, problem))
             continue
@@ -270,12 +282,31 @@ def read_episodes(
     return EpisodeSet(episodes, invalid, snapped)
 
 
+def _entry_id(item, i: int) -> str:
+    """An entry's id for messages: its ``episode_id`` if it is a usable string, else ``#<index>``."""
+    eid = item.get("episode_id") if isinstance(item, dict) else None
+    return eid if isinstance(eid, str) else str(eid) if isinstance(eid, int) and not isinstance(eid, bool) else f"#{i}"
+
+
 def _from_ours(item, i: int) -> Episode | InvalidEpisode:
     try:
-        return Episode.from_dict(item)
-    except (KeyError, TypeError) as exc:
-        eid = item.get("episode_id", i) if isinstance(item, dict) else i
-        return InvalidEpisode("", str(eid), f"malformed episode entry ({exc})")
+        return Episode(**fields_.parse_ours(item, Episode))
+    except fields_.FieldProblem as exc:
+        return InvalidEpisode("", _entry_id(item, i), str(exc))
+
+
+def _mark_duplicates(parsed: list) -> list:
+    """Entries whose id repeats an earlier entry's become invalid (ids key records and resumes)."""
+    first: dict[str, int] = {}
+    out = []
+    for i, e in enumerate(parsed):
+        if isinstance(e, Episode):
+            if e.episode_id in first:
+                e = InvalidEpisode("", e.episode_id, f"duplicate episode id (entry {i}; first used by entry {first[e.episode_id]})")
+            else:
+                first[e.episode_id] = i
+        out.append(e)
+    return out
 
 
 def _labelled(fields: dict, task: TaskConfig) -> Episode:
@@ -303,15 +334,27 @@ def _from_habitat(items: list, name: str, task: TaskConfig, path) -> list[Episod
 
 def _from_authors(item, i: int, scene: str, task: TaskConfig) -> Episode | InvalidEpisode:
     try:
-        start, sq, goal, gq = (tuple(float(v) for v in item[k]) for k in ("startXYZ", "startQuat", "endXYZ", "endQuat"))
-        dist = float(item.get("dist", math.hypot(goal[0] - start[0], goal[1] - start[1])))
-        path_dist = float(item.get("pathDist", dist))
-    except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        return InvalidEpisode("", str(i), f"malformed authors' episode ({exc})")
-    if len(start) != 3 or len(goal) != 3 or len(sq) != 4 or len(gq) != 4:
-        return InvalidEpisode("", str(i), "positions need 3 values and quaternions 4")
+        if not isinstance(item, dict):
+            raise fields_.FieldProblem(f"expected an object with startXYZ, startQuat, endXYZ, endQuat, got a "
+                                       f"{type(item).__name__}")
+        missing = [k for k in AUTHORS_KEYS[:4] if k not in item]
+        if missing:
+            raise fields_.FieldProblem(f"missing field(s): {', '.join(missing)}")
+        start, goal = fields_.vector(item["startXYZ"], "startXYZ", 3), fields_.vector(item["endXYZ"], "endXYZ", 3)
+        sq, gq = fields_.vector(item["startQuat"], "startQuat", 4), fields_.vector(item["endQuat"], "endQuat", 4)
+        dist = fields_.number(item.get("dist", math.hypot(goal[0] - start[0], goal[1] - start[1])), "dist")
+        path_dist = fields_.number(item.get("pathDist", dist), "pathDist")
+        problem = fields_.quaternion_problem(sq, "startQuat") or fields_.quaternion_problem(gq, "endQuat")
+        if problem:
+            raise fields_.FieldProblem(problem)
+    except fields_.FieldProblem as exc:
+        return InvalidEpisode("", str(i), str(exc))
     return _labelled(dict(episode_id=str(i), scene=scene, start_position=start, start_rotation=sq, goal_position=goal,
                           goal_rotation=gq, euclidean_distance=dist, geodesic_distance=path_dist), task)
+
+
+AUTHORS_KEYS = ("startXYZ", "startQuat", "endXYZ", "endQuat", "dist", "pathDist")
+"""Fields of one entry of the authors' format (the last two optional)."""
 
 
 def relabel(ep: Episode, task: TaskConfig) -> Episode:
