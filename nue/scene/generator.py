@@ -31,6 +31,7 @@ from nue.scene.house_furnish import furnish, hang_pictures
 from nue.scene.house_layout import Plan, PlanFailure, PlanParams, make_plan
 from nue.scene.house_mesh import Material, build_mesh, write_obj
 from nue.scene.house_trav import check_house, map_size, trav_map
+from nue.scene.scene import MESH_NAME, Scene, content_hash
 
 GENERATOR_VERSION = 3
 """Bumped whenever the same seed and config would give a different house."""
@@ -240,24 +241,57 @@ def generate_house(seed: int, out_dir: str | Path, config: HouseConfig = HouseCo
         "pictures": [{"room": p.room, "texture": p.material, "wall_axis": "x" if p.axis == 0 else "y",
                       "facing": p.sign, "plane": _m(p.plane), "span": _m(p.span), "z": _m(p.z)} for p in pictures],
     }
+    meta["content_hash"] = content_hash(out, out / MESH_NAME, 1)  # lets a later run tell a corrupted copy
     (out / "house.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
     return out
 
 
-def _complete(folder: Path) -> bool:
-    return folder.is_dir() and all((folder / f).is_file() for f in HOUSE_FILES) and (folder / "textures").is_dir()
-
-
-def _check_existing(folder: Path, seed: int, config: HouseConfig) -> None:
-    """Refuse a complete folder that holds another house (other seed, config or generator version)."""
+def house_problem(folder: Path, seed: int, config: HouseConfig) -> str | None:
+    """What keeps ``folder`` from being a complete, intact copy of house ``seed`` (None if it is one):
+    a missing file, an unreadable or foreign ``house.json``, another seed / config / generator
+    version, a scene that does not load, or content that changed since it was generated."""
+    missing = [f for f in HOUSE_FILES if not (folder / f).is_file()] + ([] if (folder / "textures").is_dir() else ["textures/"])
+    if missing:
+        return f"not a complete generated house (missing {', '.join(missing)})"
     try:
         meta = json.loads((folder / "house.json").read_text())
     except (OSError, ValueError) as exc:
-        raise SceneError(folder / "house.json", f"unreadable ({exc}); delete the folder to regenerate") from None
+        return f"house.json is unreadable ({type(exc).__name__})"
+    if not isinstance(meta, dict) or meta.get("generator") != "nue.scene.generator":
+        return "house.json was not written by nue's house generator"
     want = {"seed": seed, "version": GENERATOR_VERSION, "config": json.loads(json.dumps(dataclasses.asdict(config)))}
     for key, value in want.items():
         if meta.get(key) != value:
-            raise SceneError(folder, f"holds a different house ({key} differs); delete it or use another --out")
+            return f"holds a different house ({key} differs)"
+    try:
+        scene = Scene.load(folder)
+    except SceneError as exc:
+        return f"corrupt ({exc})"
+    if meta.get("content_hash") not in (None, scene.content_hash):
+        return f"content changed since it was generated (hash {scene.content_hash}, generated {meta['content_hash']})"
+    return None
+
+
+def _is_ours(folder: Path) -> bool:
+    """Whether ``folder/house.json`` says nue's generator wrote the folder (so it may be regenerated)."""
+    try:
+        return json.loads((folder / "house.json").read_text()).get("generator") == "nue.scene.generator"
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _generate_into(folder: Path, seed: int, config: HouseConfig) -> Path:
+    """Generate into a temporary sibling folder and rename it to ``folder`` (replacing it if present)."""
+    root = folder.parent
+    root.mkdir(parents=True, exist_ok=True)
+    _remove_stale_temps(root, folder.name)
+    tmp = root / f".{folder.name}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    generate_house(seed, tmp, config)
+    if folder.exists():
+        shutil.rmtree(folder)
+    os.replace(tmp, folder)
+    return folder
 
 
 def _remove_stale_temps(root: Path, name: str) -> None:
@@ -272,11 +306,14 @@ def _remove_stale_temps(root: Path, name: str) -> None:
 
 
 def generate_split(split: str, out_root: str | Path, config: HouseConfig = HouseConfig(),
-                   progress: bool = True) -> list[Path]:
-    """Write ``out_root/<split>_<NN>/`` for every seed of ``split``; complete houses are kept.
+                   progress: bool = True, force: bool = False) -> list[Path]:
+    """Write ``out_root/<split>_<NN>/`` for every seed of ``split``; intact houses are kept.
 
     Each house is written to a temporary folder and renamed into place, so an interrupted run
-    leaves no half-written house. Unknown split -> ConfigError.
+    leaves no half-written house. A folder that is not an intact copy of its house
+    (:func:`house_problem`) is refused with :class:`SceneError`; with ``force`` it is regenerated if
+    its ``house.json`` shows our generator made it (a folder of the user's is never overwritten).
+    Unknown split -> ConfigError.
     """
     if split not in SPLITS:
         raise ConfigError(split, f"unknown split; choose one of {sorted(SPLITS)}")
@@ -286,18 +323,16 @@ def generate_split(split: str, out_root: str | Path, config: HouseConfig = House
     paths = []
     for k, seed in enumerate(SPLITS[split]):
         folder = root / f"{split}_{k:02d}"
-        if _complete(folder):
-            _check_existing(folder, seed, config)
+        problem = house_problem(folder, seed, config) if folder.exists() else None
+        if folder.exists() and problem is None:
             status = "kept"
+        elif problem is not None and not (force and _is_ours(folder)):
+            hint = ("rerun with --force to regenerate it" if _is_ours(folder)
+                    else "it is not a house nue generated: move it away or use another --out")
+            raise SceneError(folder, f"{problem}; {hint}")
         else:
-            _remove_stale_temps(root, folder.name)
-            tmp = root / f".{folder.name}.tmp-{os.getpid()}"
-            shutil.rmtree(tmp, ignore_errors=True)
-            generate_house(seed, tmp, config)
-            if folder.exists():  # an incomplete folder of ours or a stray one
-                shutil.rmtree(folder)
-            os.replace(tmp, folder)
-            status = "generated"
+            _generate_into(folder, seed, config)
+            status = "regenerated" if problem else "generated"
         paths.append(folder)
         if progress:
             print(f"[{k + 1}/{len(SPLITS[split])}] {folder} ({status}, seed {seed})", file=sys.stderr)
@@ -305,16 +340,17 @@ def generate_split(split: str, out_root: str | Path, config: HouseConfig = House
 
 
 def ensure_house(split: str, index: int, root: str | Path, config: HouseConfig = HouseConfig()) -> Path:
-    """``root/<split>_<NN>/``: house ``index`` of ``split``, (re)generated unless a complete copy of
-    exactly this house (seed, config, generator version) is there. For caches the package owns."""
+    """``root/<split>_<NN>/``: house ``index`` of ``split``, generated if the folder does not exist; a
+    folder that is not an intact copy of exactly this house (:func:`house_problem`) is refused with
+    :class:`SceneError`, never overwritten."""
     if split not in SPLITS:
         raise ConfigError(split, f"unknown split; choose one of {sorted(SPLITS)}")
     seed = SPLITS[split][index]
     folder = Path(root) / f"{split}_{index:02d}"
-    if _complete(folder):
-        try:
-            _check_existing(folder, seed, config)
-            return folder
-        except SceneError:
-            shutil.rmtree(folder)
-    return generate_house(seed, folder, config)
+    if not folder.exists():
+        return _generate_into(folder, seed, config)
+    problem = house_problem(folder, seed, config)
+    if problem:
+        raise SceneError(folder, f"{problem}; regenerate it with `nue scenes generate --split {split} --out {root} "
+                                 f"--force`, or point --scenes-root elsewhere")
+    return folder

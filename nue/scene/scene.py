@@ -89,6 +89,8 @@ class Scene:
         """The mesh as a ``trimesh.Scene`` (textures included); :class:`SceneError` if unreadable or empty."""
         import trimesh
 
+        if self.mesh_path.suffix.lower() == ".obj":
+            check_obj_text(self.mesh_path)
         try:
             loaded = trimesh.load(str(self.mesh_path), force="scene")
         except Exception as exc:  # trimesh raises many types for a corrupt file
@@ -96,7 +98,36 @@ class Scene:
         n_faces = sum(len(g.faces) for g in loaded.geometry.values() if hasattr(g, "faces"))
         if n_faces == 0:
             raise SceneError(self.mesh_path, "mesh has no triangles (corrupt or empty file)")
+        for g in loaded.geometry.values():  # OBJ text is checked line by line above; GLB / PLY here
+            if hasattr(g, "vertices") and not np.isfinite(np.asarray(g.vertices)).all():
+                raise SceneError(self.mesh_path, "mesh has vertices that are NaN or inf")
         return loaded
+
+
+OBJ_MIN_VALUES = {b"v": 3, b"vt": 2, b"vn": 3, b"f": 3}
+"""Values an OBJ statement needs at least (vertex, texture coordinate, normal, face)."""
+
+
+def check_obj_text(path: Path) -> None:
+    """:class:`SceneError` naming the line if a text OBJ has a vertex, texture coordinate or normal
+    with too few values or a NaN/inf, or a face with fewer than 3 corners. Binary garbage is left
+    to the mesh reader."""
+    with open(path, "rb") as f:
+        for lineno, raw in enumerate(f, 1):
+            parts = raw.split()
+            need = OBJ_MIN_VALUES.get(parts[0]) if parts else None
+            if need is None:
+                continue
+            kind = parts[0].decode()
+            if len(parts) - 1 < need:
+                raise SceneError(path, f"line {lineno}: '{kind}' needs at least {need} values, got {len(parts) - 1}")
+            if kind != "f":
+                try:
+                    values = [float(v) for v in parts[1 : need + 1]]
+                except ValueError:
+                    raise SceneError(path, f"line {lineno}: '{kind}' values are not numbers") from None
+                if not all(math.isfinite(v) for v in values):
+                    raise SceneError(path, f"line {lineno}: '{kind}' has a NaN or inf value")
 
 
 def read_floors(path: Path) -> tuple[float, ...]:
@@ -141,22 +172,35 @@ def read_trav_map(path: Path) -> np.ndarray:
 
 
 def _referenced_files(mesh_path: Path) -> list[Path]:
-    """Material libraries of an OBJ and the texture images they reference (existing files only)."""
+    """Material libraries of an OBJ and the texture images they reference; :class:`SceneError` if one
+    is missing or a texture is not a readable image (rather than rendering it untextured)."""
     if mesh_path.suffix.lower() != ".obj":
         return []
     files: list[Path] = []
     with open(mesh_path, "rb") as f:
         for raw in f:
             if raw.startswith(b"mtllib"):
-                files.append(mesh_path.parent / raw.split(None, 1)[1].decode().strip())
-    textures: list[Path] = []
+                parts = raw.split(None, 1)
+                if len(parts) < 2:
+                    raise SceneError(mesh_path, "'mtllib' without a file name")
+                files.append(mesh_path.parent / parts[1].decode(errors="replace").strip())
+    textures: dict[Path, Path] = {}
     for mtl in files:
-        if mtl.is_file():
-            for line in mtl.read_text(errors="replace").splitlines():
-                m = re.match(r"\s*map_\w+\s+(?:-\S+\s+\S+\s+)*(.+)$", line)
-                if m:
-                    textures.append(mtl.parent / m.group(1).strip())
-    return [p for p in dict.fromkeys(files + textures) if p.is_file()]
+        if not mtl.is_file():
+            raise SceneError(mtl, f"material library referenced by {mesh_path.name} not found")
+        for line in mtl.read_text(errors="replace").splitlines():
+            m = re.match(r"\s*map_\w+\s+(?:-\S+\s+\S+\s+)*(.+)$", line)
+            if m:
+                textures.setdefault(mtl.parent / m.group(1).strip(), mtl)
+    for tex, mtl in textures.items():
+        if not tex.is_file():
+            raise SceneError(tex, f"texture referenced by {mtl.name} not found")
+        try:
+            with Image.open(tex) as img:
+                img.verify()
+        except Exception as exc:
+            raise SceneError(tex, f"texture is not a readable image ({type(exc).__name__})") from None
+    return list(dict.fromkeys([*files, *textures]))
 
 
 def content_hash(folder: Path, mesh_path: Path, n_floors: int) -> str:
