@@ -13,7 +13,9 @@ from typing import Optional
 
 import typer
 
+from nue import cli_args as A
 from nue.errors import NueError
+from nue.outputs import check_output_dir, check_output_file
 
 app = typer.Typer(add_completion=False, pretty_exceptions_enable=False, no_args_is_help=True,
                   help="Image-goal navigation with an uncertainty-aware NeRF memory.")
@@ -27,11 +29,13 @@ app.add_typer(episodes_app, name="episodes")
 def scenes_generate(
     split: str = typer.Option(..., help="train (21 houses) or val (14 houses)."),
     out: Path = typer.Option(..., help="Folder to write <split>_<NN>/ scene folders into."),
+    force: bool = typer.Option(False, help="Regenerate generated houses that are corrupt, incomplete or another house."),
 ):
-    """Write the fixed-seed houses of a split in the Gibson layout (existing complete houses are kept)."""
+    """Write the fixed-seed houses of a split in the Gibson layout (intact houses are kept)."""
     from nue.scene.generator import generate_split
 
-    paths = generate_split(split, out)
+    check_output_dir(out)
+    paths = generate_split(split, out, force=force)
     typer.echo(f"{len(paths)} scenes in {out}")
 
 
@@ -63,6 +67,9 @@ def episodes_generate(
     from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
     from nue.sim.episodes import save_episodes
 
+    A.positive("--per-bin", per_bin)
+    A.choice("--format", fmt, EPISODE_FORMATS)
+    check_output_file(out, "the episode file")
     s = Scene.load(scene)
     eps = generate_episodes(s, task, EpisodeGenConfig(per_bin=per_bin), seed=seed)
     save_episodes(out, eps, task, fmt=fmt)
@@ -82,10 +89,15 @@ def episodes_convert(
     from nue.scene.scene import Scene
     from nue.sim.episodes import load_episodes, save_episodes
 
+    A.choice("--format", fmt, EPISODE_FORMATS)
+    check_output_file(out, "the episode file")
     s = Scene.load(scene) if scene is not None else None
     eps = load_episodes(source, s, task)
     save_episodes(out, eps, task, fmt=fmt)
     typer.echo(f"{len(eps)} episodes -> {out}")
+
+
+EPISODE_FORMATS = ("nue", "authors", "habitat")
 
 
 def _echo_episode_checks(skipped, snapped: dict | None = None, source=None) -> None:
@@ -120,8 +132,9 @@ def expert(
     from nue.errors import EpisodeError
     from nue.sim.episodes import read_episodes
 
-    if kind not in EXPERT_KINDS:
-        raise typer.BadParameter(f"expected one of {', '.join(EXPERT_KINDS)}", param_hint="--kind")
+    A.choice("--kind", kind, EXPERT_KINDS)
+    if records:
+        check_output_file(records, "the records file")
     s = Scene.load(scene)
     nav = NavGrid.from_scene(s)
     loaded = read_episodes(episodes, s, task, navgrid=nav, skip_invalid=skip_invalid)
@@ -167,6 +180,14 @@ def collect_cmd(
     """Collect expert demonstrations with the online NeRF memory (resumes if rerun)."""
     from nue.train.collect import CollectConfig, collect
 
+    A.positive("--episodes-per-bin", episodes_per_bin)
+    A.non_negative("--heldout-per-bin", heldout_per_bin)
+    A.positive("--workers", workers)
+    A.probability("--noise", noise)
+    A.non_negative("--memory-lag", memory_lag)
+    A.device("--device", device)
+    check_output_dir(out, "the collection folder")
+    check_output_dir(scenes_root, "the scenes folder")
     cfg = CollectConfig(task=task, memory=memory, model=model, houses=_ints(houses),
                         scene_dirs=tuple(str(p) for p in scene), episodes_per_bin=episodes_per_bin,
                         heldout_per_bin=heldout_per_bin, seed=seed, device=device, expert=expert_kind, noise=noise,
@@ -215,6 +236,17 @@ def train_cmd(
 
     from nue.train.bc import TrainConfig, train
 
+    for option, value in (("--steps", steps), ("--batch-size", batch_size), ("--eval-every", eval_every),
+                          ("--select-candidates", select_candidates), ("--select-workers", select_workers),
+                          ("--workers", workers)):
+        A.positive(option, value)
+    for option, value in (("--time-budget", time_budget), ("--warmup", warmup), ("--dagger-rounds", dagger_rounds),
+                          ("--dagger-steps", dagger_steps), ("--dagger-episodes-per-bin", dagger_episodes_per_bin)):
+        A.non_negative(option, value)
+    A.probability("--map-dropout", map_dropout)
+    A.probability("--dagger-beta", dagger_beta)
+    A.device("--device", device)
+    check_output_dir(out, "the run folder")
     cfg = TrainConfig(data=str(data), out=str(out), model=model, steps=steps, batch_size=batch_size, lr=lr,
                       aux_weight=aux_weight, time_budget_s=60 * time_budget, eval_every=eval_every, seed=seed,
                       device=device, precision=precision, init_from=str(init_from or ""), warmup=warmup,
@@ -250,6 +282,11 @@ def select_cmd(
     """Closed-loop model selection: run a run's last snapshots on training-house episodes, copy the best to best.pt."""
     from nue.train.select import SelectConfig, select_checkpoint
 
+    A.positive("--candidates", candidates)
+    A.positive("--workers", workers)
+    A.non_negative("--max-episodes", max_episodes)
+    A.device("--device", device)
+    check_output_file(run / "best.pt", "the selected checkpoint")
     ranked = select_checkpoint(run, SelectConfig(episodes_dir=str(episodes_dir), scenes_root=str(scenes_root),
                                                  candidates=candidates, max_episodes=max_episodes, workers=workers,
                                                  device=device))
@@ -279,6 +316,11 @@ def eval_cmd(
     from nue.evaluate.report import load_records
     from nue.evaluate.runner import EvalConfig, run_eval
 
+    A.positive("--workers", workers)
+    A.non_negative("--max-episodes", max_episodes)
+    A.non_negative("--max-steps", max_steps)
+    A.device("--device", device)
+    check_output_file(out, "the records file")
     cfg = EvalConfig(episodes_dir=str(episodes_dir), scenes_root=str(scenes_root), task=task, seed=seed,
                      device=device, swap_maps=swap_maps, max_episodes=max_episodes, max_steps=max_steps,
                      skip_invalid=skip_invalid)
@@ -304,6 +346,9 @@ def report_cmd(
 
     from nue.evaluate.report import load_records, render_results_md, write_report
 
+    check_output_dir(out, "the report folder")
+    if results_md:
+        check_output_file(results_md)
     recs = load_records(*records)
     paths = write_report(recs, out, task=task)
     typer.echo((out / "table.md").read_text() if (out / "table.md").is_file() else "")
@@ -340,6 +385,10 @@ def diagnose_cmd(
         raise ConfigError(None, "nothing to diagnose: give --records and/or --data")
     if checkpoint is not None and data is None:
         raise ConfigError(checkpoint, "--checkpoint needs --data (the demonstrations to evaluate it on)")
+    A.positive("--max-episodes", max_episodes)
+    A.positive("--probe-steps", probe_steps)
+    if out:
+        check_output_file(out)
     result: dict = {}
     if records:
         diags = D.record_diagnostics(D.read_records(*records), task, method)
@@ -378,6 +427,8 @@ def demo(
     """Run the agent on one episode per difficulty in a validation house; write figures and a table."""
     from nue.demo import run_demo
 
+    A.non_negative("--max-steps", max_steps)
+    check_output_dir(out)
     table = run_demo(out, house=house, task_name=task, seed=seed, checkpoint=checkpoint, max_steps=max_steps,
                      use_default_checkpoint=not expert)
     typer.echo(table)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import binascii
 import json
 import math
-from dataclasses import asdict, astuple, dataclass, field, is_dataclass
+from dataclasses import MISSING, asdict, astuple, dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -165,7 +165,14 @@ def read_records(*paths) -> list[EpisodeRecord]:
             if not line.strip():
                 continue
             try:
-                r = EpisodeRecord.from_dict(json.loads(line))
+                d = json.loads(line)
+                if not isinstance(d, dict):
+                    raise TypeError(f"a JSON {type(d).__name__}, not an object")
+                missing = [f.name for f in fields(EpisodeRecord) if f.name not in d
+                           and f.default is MISSING and f.default_factory is MISSING]
+                if missing:
+                    raise TypeError(f"missing {', '.join(missing)}")
+                r = EpisodeRecord.from_dict(d)
                 if not isinstance(r.extra, dict):
                     raise TypeError("extra is not an object")
                 r.trajectory()

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import re
 from dataclasses import dataclass
@@ -25,7 +24,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from nue.evaluate import coverage as cov
-from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, record_diagnostics
+from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, read_records, record_diagnostics
 from nue.evaluate.metrics import EpisodeRecord, dts, spl, success
 from nue.evaluate.stats import paired_bootstrap, wilson_interval  # noqa: F401  (re-exported)
 from nue.evaluate.table import (  # noqa: F401  (re-exported)
@@ -229,12 +228,9 @@ def format_paired_markdown(diffs: Sequence[PairedDiff]) -> str:
 
 # --- files --------------------------------------------------------------------------------------
 def load_records(*paths) -> list[EpisodeRecord]:
-    """Records from JSON-lines files (one ``EpisodeRecord.to_dict()`` per line; blank lines skipped)."""
-    out = []
-    for p in paths:
-        with open(p) as f:
-            out += [EpisodeRecord.from_dict(json.loads(line)) for line in f if line.strip()]
-    return out
+    """Records from JSON-lines files (one ``EpisodeRecord.to_dict()`` per line; blank lines skipped),
+    checked by :func:`nue.evaluate.diagnose.read_records` (a bad file or line raises DataError)."""
+    return read_records(*paths)
 
 
 NOTES = (

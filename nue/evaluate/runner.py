@@ -18,7 +18,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from nue.errors import CheckpointError, DataError
+from nue.errors import CheckpointError, ConfigError, DataError
 from nue.jobs import Job, run_jobs
 from nue.train.collect import episode_seed
 
@@ -62,6 +62,8 @@ def parse_method(spec: str) -> tuple[str, str | None]:
         return spec, None
     if "=" in spec:
         name, path = spec.split("=", 1)
+        if not name.strip() or not path.strip():
+            raise ConfigError("--checkpoint", f"{spec!r}: expected name=path with a non-empty name and path")
         return name, path
     from nue.train.checkpoint import load_checkpoint
 
@@ -85,9 +87,13 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
     from nue.scene.scene import Scene
     from nue.sim.episodes import read_episodes
 
-    files = episode_files(cfg.episodes_dir)
     parsed = [parse_method(m) for m in methods]
-    digests = {ckpt: file_sha256(ckpt) for _, ckpt in parsed if ckpt is not None}
+    names = [name for name, _ in parsed]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ConfigError("--checkpoint", f"method name {twice[0]!r} given twice; name them apart with name=path")
+    digests = {ckpt: checkpoint_digest(ckpt, cfg.task) for _, ckpt in parsed if ckpt is not None}
+    files = episode_files(cfg.episodes_dir)
     jobs = []
     for f in files:
         name = f.name.removesuffix(".gz").removesuffix(".json")
@@ -115,6 +121,16 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
                     "coverage": cfg.coverage, "max_steps": cfg.max_steps,
                 }))
     return jobs
+
+
+def checkpoint_digest(path: str, task: str) -> str:
+    """Check a checkpoint once in the driver (readable, finite weights, trained for ``task``) before any
+    episode runs; returns its :func:`file_sha256`."""
+    from nue.sim.task import get_task
+    from nue.train.checkpoint import check_compatible, load_checkpoint
+
+    check_compatible(load_checkpoint(path), path, task=get_task(task))
+    return file_sha256(path)
 
 
 def file_sha256(path: str) -> str:

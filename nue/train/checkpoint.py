@@ -46,7 +46,11 @@ def save_checkpoint(path, payload: dict) -> Path:
 
 
 def load_checkpoint(path, map_location="cpu") -> dict:
+    """A checkpoint file's dict; :class:`CheckpointError` if it is missing, a folder, unreadable, of
+    another format, or holds weights (model or memory) that are not finite."""
     path = Path(path)
+    if path.is_dir():
+        raise CheckpointError(path, "is a directory, not a checkpoint file")
     if not path.is_file():
         raise CheckpointError(path, "checkpoint not found")
     try:
@@ -55,7 +59,24 @@ def load_checkpoint(path, map_location="cpu") -> dict:
         raise CheckpointError(path, f"cannot read checkpoint ({type(exc).__name__})") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise CheckpointError(path, f"not a {FORMAT} checkpoint")
+    for part in ("model_state", "memory_init"):
+        bad = _non_finite(ckpt.get(part))
+        if bad:
+            raise CheckpointError(path, f"weights are not finite: {part} {bad} holds NaN or inf")
     return ckpt
+
+
+def _non_finite(state, prefix: str = "") -> str:
+    """Name of the first floating tensor in a (nested) state dict holding NaN or inf, '' if none."""
+    if isinstance(state, torch.Tensor):
+        finite = not state.is_floating_point() or bool(torch.isfinite(state).all())
+        return "" if finite else (prefix or "tensor")
+    items = state.items() if isinstance(state, dict) else enumerate(state) if isinstance(state, (list, tuple)) else ()
+    for k, v in items:
+        bad = _non_finite(v, f"{prefix}.{k}" if prefix else str(k))
+        if bad:
+            return bad
+    return ""
 
 
 def load_policy(path, device="cpu"):
