@@ -5,6 +5,8 @@ already done (per a caller's ``is_done``), runs the rest in ``spawn``-started wo
 torch thread and one llvmpipe thread each: forking after EGL or torch can hang) or as Ray tasks on an
 existing cluster, and hands each result to ``on_result`` in the driver, which writes it atomically.
 A killed run therefore loses at most the jobs in flight; rerunning the same command resumes.
+Local workers watch their parent and exit as soon as it is gone, so killing the driver (even with
+``kill -9``) leaves no worker, and then no resource tracker, behind.
 
 Failure injection for tests: with ``NUE_FAIL_AFTER=k`` in the environment, the driver raises
 :class:`InjectedFailure` after k results were written in this run (as if the job were killed).
@@ -14,6 +16,8 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import threading
+import time
 
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
@@ -36,8 +40,30 @@ class Job:
     payload: dict = field(default_factory=dict)
 
 
-def worker_init(threads: int = 1) -> None:
-    """Initialise a worker process: one torch / BLAS / llvmpipe thread unless told otherwise."""
+PARENT_POLL_S = 0.2
+"""How often a local worker checks that its parent is alive, seconds."""
+
+
+def watch_parent(parent_pid: int, interval: float = PARENT_POLL_S) -> threading.Thread:
+    """Exit this process (status 1, no cleanup) once its parent ``parent_pid`` has gone: an orphan is
+    re-parented, so ``os.getppid()`` changes. Runs in a daemon thread, so it also fires while the
+    worker's main thread is busy with a job."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(interval)
+        os._exit(1)
+
+    thread = threading.Thread(target=watch, name="nue-parent-watch", daemon=True)
+    thread.start()
+    return thread
+
+
+def worker_init(threads: int = 1, parent_pid: int | None = None) -> None:
+    """Initialise a worker process: one torch / BLAS / llvmpipe thread unless told otherwise; with
+    ``parent_pid``, exit when that parent dies (:func:`watch_parent`)."""
+    if parent_pid is not None:
+        watch_parent(parent_pid)
     for var in ("LP_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = str(threads)
     try:
@@ -101,7 +127,8 @@ def run_jobs(
 def _run_pool(todo: Iterable[Job], fn, finish, workers: int, by_key: dict[str, Job]) -> None:
     ctx = mp.get_context("spawn")
     pending_jobs = list(todo)
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=worker_init) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=worker_init,
+                             initargs=(1, os.getpid())) as pool:
         running = set()
         # Keep at most 2 jobs per worker queued, so a kill loses little and results stream in order.
         while pending_jobs or running:
