@@ -17,6 +17,10 @@ class NueError(Exception):
         self.problem = problem
         super().__init__(f"{self.where}: {problem}" if self.where else problem)
 
+    def __reduce__(self):
+        """Pickle as (class, (where, problem)), so an error raised in a worker process reaches the driver intact."""
+        return type(self), (self.where, self.problem)
+
 
 class SceneError(NueError):
     """A scene folder is missing a file or holds a malformed mesh, floors.txt or traversability map."""
@@ -50,3 +54,6 @@ class InvalidEpisodesError(EpisodeError):
         """(episode id, problem) of each invalid episode, in file order."""
         listed = "; ".join(f"episode {eid}: {problem}" for eid, problem in self.invalid)
         super().__init__(where, listed if len(self.invalid) == 1 else f"{len(self.invalid)} invalid episodes: {listed}")
+
+    def __reduce__(self):
+        return type(self), (self.where, self.invalid)

@@ -357,3 +357,15 @@ def test_scenes_generate_regenerates_a_corrupt_house_only_with_force(capsys, tmp
     code, _, err = run_cli(capsys, "scenes", "generate", "--split", "tiny", "--out", root, "--force")
     assert code == 0 and "regenerated" in err, err
     assert texture.read_bytes() == good
+
+
+def test_typed_errors_survive_a_worker_process_boundary():
+    """Errors raised in a worker are pickled to the driver; they must arrive with the same one line."""
+    import pickle
+
+    from nue.errors import CheckpointError, InvalidEpisodesError, SceneError
+
+    for exc in (SceneError("a/mesh_z_up.obj", "line 3: 'v' needs at least 3 values, got 2"),
+                CheckpointError(None, "no file"), InvalidEpisodesError("eps.json", [("e1", "bad"), ("e2", "worse")])):
+        back = pickle.loads(pickle.dumps(exc))
+        assert type(back) is type(exc) and str(back) == str(exc) and back.where == exc.where
