@@ -265,7 +265,14 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     step, best = 0, -1.0
     elapsed = 0.0
     fail_at = int(os.environ.get(FAIL_AT_ENV, "0") or 0)
+    per_rank = cfg.batch_size // world
+    if model_cfg.recurrent:
+        sampler = SequenceSampler(data, per_rank, cfg.seq_len, rng, rank=0, world=1)
+    else:
+        sampler = BufferSampler(data, per_rank, rng, cfg.buffer_episodes, rank=0, world=1)
     if resume and (out_dir / "last.pt").is_file():
+        # Everything the next step depends on: weights, optimiser, schedule, clock, and per rank the
+        # generator, the sampler's position and torch's generator (older checkpoints: the generator only).
         ck = load_checkpoint(out_dir / "last.pt")
         if ck["model_config"] != model_cfg.to_dict():
             raise CheckpointError(out_dir / "last.pt", "was trained with another model config; use another --out")
@@ -273,12 +280,11 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
         opt.load_state_dict(ck["optimizer"])
         sched.load_state_dict(ck["scheduler"])
         step, best, elapsed = ck["step"], ck.get("best", -1.0), ck.get("elapsed_s", 0.0)
+        clock["elapsed"] = elapsed
         rng.bit_generator.state = ck["rng_states"][rank]
-    per_rank = cfg.batch_size // world
-    if model_cfg.recurrent:
-        sampler = SequenceSampler(data, per_rank, cfg.seq_len, rng, rank=0, world=1)
-    else:
-        sampler = BufferSampler(data, per_rank, rng, cfg.buffer_episodes, rank=0, world=1)
+        if "sampler_states" in ck:
+            sampler.load_state_dict(ck["sampler_states"][rank])
+            torch.set_rng_state(ck["torch_rng_states"][rank])
 
     memory_cfg = MemoryConfig.from_dict(data.manifest["memory"])
     meta = policy_meta(task, memory_cfg, model_cfg, data.manifest["scenes"], manifest_hash(data.manifest),
@@ -295,12 +301,13 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
         payload = {**meta, "model_state": model.state_dict(), "step": step, "best": best, "elapsed_s": elapsed,
                    "metrics": metrics or {}}
         if full:
-            states = [rng.bit_generator.state]
+            mine = (rng.bit_generator.state, sampler.state_dict(), torch.get_rng_state())
+            states = [mine]
             if world > 1:
-                gathered = [None] * world
-                torch.distributed.all_gather_object(gathered, rng.bit_generator.state)
-                states = gathered
-            payload.update(optimizer=opt.state_dict(), scheduler=sched.state_dict(), rng_states=states)
+                states = [None] * world
+                torch.distributed.all_gather_object(states, mine)
+            payload.update(optimizer=opt.state_dict(), scheduler=sched.state_dict(), rng_states=[s[0] for s in states],
+                           sampler_states=[s[1] for s in states], torch_rng_states=[s[2] for s in states])
         return save_checkpoint(out_dir / name, payload) if rank == 0 else out_dir / name
 
     # -- loop ------------------------------------------------------------------------------------
@@ -310,7 +317,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     t_start = time.perf_counter() - elapsed
     first_step = step
     samples_seen, t_window = 0, time.perf_counter()
-    while step < cfg.steps:
+    spent = cfg.time_budget_s > 0 and elapsed >= cfg.time_budget_s  # a resumed run whose budget is used up
+    while step < cfg.steps and not spent:
         drawn = next(it)
         if model_cfg.recurrent:
             eps, steps_, reset = drawn

@@ -165,27 +165,63 @@ def swap_maps(batch, rng: np.random.Generator, p: float):
 class BufferSampler:
     """Random step indices, a shuffled buffer of ``buffer_episodes`` episodes at a time.
 
-    ``rank``/``world`` split every buffer between data-parallel processes.
+    ``rank``/``world`` split every buffer between data-parallel processes. An iterator whose position
+    (epoch order, buffer, permutation, batch offset) is :meth:`state_dict`, so a resumed run draws
+    the same batches as an uninterrupted one (together with the generator's state). Draws from
+    ``rng`` happen in this order: an epoch's episode order, then each buffer's step permutation.
     """
 
     def __init__(self, data: DemoSet, batch_size: int, rng: np.random.Generator, buffer_episodes: int = 64,
                  rank: int = 0, world: int = 1):
         self.data, self.batch_size, self.rng = data, batch_size, rng
         self.buffer_episodes, self.rank, self.world = buffer_episodes, rank, world
+        self._order: np.ndarray | None = None
+        """This epoch's episode order (None before the first draw)."""
+        self._start = 0
+        """Index in ``_order`` of the current buffer's first episode."""
+        self._perm: np.ndarray | None = None
+        """Permutation of the current buffer's steps."""
+        self._next = 0
+        """Offset in ``_perm`` of the next batch."""
+        self._steps: tuple[np.ndarray, np.ndarray] | None = None
 
     def __iter__(self):
-        d = self.data
-        while True:
-            order = self.rng.permutation(d.n_episodes)
-            for s in range(0, len(order), self.buffer_episodes):
-                eps = order[s : s + self.buffer_episodes]
-                ep_idx = np.concatenate([np.full(d.lengths[e], e) for e in eps])
-                st_idx = np.concatenate([np.arange(d.lengths[e]) for e in eps])
-                perm = self.rng.permutation(len(ep_idx))
-                per = self.batch_size * self.world
-                for b in range(0, len(perm) - per + 1, per):
-                    take = perm[b : b + per][self.rank :: self.world]
-                    yield ep_idx[take], st_idx[take]
+        return self
+
+    def __next__(self) -> tuple[np.ndarray, np.ndarray]:
+        per = self.batch_size * self.world
+        while self._perm is None or self._next + per > len(self._perm):
+            self._next_buffer()
+        take = self._perm[self._next : self._next + per][self.rank :: self.world]
+        self._next += per
+        ep_idx, st_idx = self._buffer_steps()
+        return ep_idx[take], st_idx[take]
+
+    def _next_buffer(self) -> None:
+        if self._order is not None and self._start + self.buffer_episodes < len(self._order):
+            self._start += self.buffer_episodes
+        else:
+            self._order, self._start = self.rng.permutation(self.data.n_episodes), 0
+        self._steps = None
+        self._perm, self._next = self.rng.permutation(len(self._buffer_steps()[0])), 0
+
+    def _buffer_steps(self) -> tuple[np.ndarray, np.ndarray]:
+        """(episode, step) index of every step of the current buffer, in buffer order."""
+        if self._steps is None:
+            d, eps = self.data, self._order[self._start : self._start + self.buffer_episodes]
+            self._steps = (np.concatenate([np.full(d.lengths[e], e) for e in eps]),
+                           np.concatenate([np.arange(d.lengths[e]) for e in eps]))
+        return self._steps
+
+    def state_dict(self) -> dict:
+        """Where the sampler is (not the generator's state: the training loop saves that)."""
+        return {"order": None if self._order is None else self._order.tolist(), "start": self._start,
+                "perm": None if self._perm is None else self._perm.tolist(), "next": self._next}
+
+    def load_state_dict(self, state: dict) -> None:
+        self._order = None if state["order"] is None else np.asarray(state["order"], dtype=np.int64)
+        self._perm = None if state["perm"] is None else np.asarray(state["perm"], dtype=np.int64)
+        self._start, self._next, self._steps = int(state["start"]), int(state["next"]), None
 
 
 class SequenceSampler:
@@ -195,6 +231,13 @@ class SequenceSampler:
     def __init__(self, data: DemoSet, batch_size: int, seq_len: int, rng: np.random.Generator, rank: int = 0, world: int = 1):
         self.data, self.batch_size, self.seq_len, self.rng = data, batch_size, seq_len, rng
         self.rank, self.world = rank, world
+
+    def state_dict(self) -> dict:
+        """Nothing: each window is drawn afresh from the generator, whose state the loop saves."""
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        pass
 
     def __iter__(self):
         d, T = self.data, self.seq_len
