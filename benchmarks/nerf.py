@@ -41,7 +41,7 @@ from nue.scene.generator import ensure_house  # noqa: E402
 from nue.nerf import OnlineNeRF, get_memory  # noqa: E402
 from nue.nerf.evaluation import auroc, psnr, seen_mask  # noqa: E402
 from nue.nerf.rays import map_pixels  # noqa: E402
-from nue.rollout import ExpertAgent  # noqa: E402
+from nue.policy.agent import ExpertAgent  # noqa: E402
 from nue.scene.navgrid import NavGrid  # noqa: E402
 from nue.scene.scene import Scene  # noqa: E402
 from nue.sim.env import ImageNavEnv  # noqa: E402

@@ -126,7 +126,8 @@ def expert(
     import json
 
     from nue.evaluate.metrics import aggregate, format_table
-    from nue.rollout import EXPERT_KINDS, ExpertAgent, run_episode
+    from nue.policy.agent import EXPERT_KINDS, ExpertAgent
+    from nue.rollout import run_episode
     from nue.scene.navgrid import NavGrid
     from nue.scene.scene import Scene
     from nue.sim.env import ImageNavEnv

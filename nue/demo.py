@@ -18,7 +18,8 @@ import numpy as np
 
 from nue.evaluate.coverage import CoverageTracker
 from nue.evaluate.metrics import aggregate, format_table
-from nue.rollout import ExpertAgent, StepData, run_episode
+from nue.policy.agent import ExpertAgent
+from nue.rollout import StepData, run_episode
 from nue.scene.generator import ensure_house
 from nue.scene.navgrid import NavGrid
 from nue.scene.scene import Scene

@@ -18,11 +18,12 @@ import multiprocessing as mp
 import os
 import threading
 import time
-
+import zlib
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Sequence
 
+import numpy as np
 from tqdm import tqdm
 
 FAIL_AFTER_ENV = "NUE_FAIL_AFTER"
@@ -30,6 +31,11 @@ FAIL_AFTER_ENV = "NUE_FAIL_AFTER"
 
 class InjectedFailure(RuntimeError):
     """Raised on purpose (``NUE_FAIL_AFTER``) to test that interrupted jobs resume."""
+
+
+def episode_seed(seed: int, scene: str, episode_id: str) -> int:
+    """Per-episode seed, stable across processes (CRC32, never Python's hash())."""
+    return int(np.random.SeedSequence([seed, zlib.crc32(f"{scene}/{episode_id}".encode())]).generate_state(1)[0])
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,6 @@ from typing import Any, Callable, Protocol
 import numpy as np
 
 from nue.sim.env import ImageNavEnv
-from nue.sim.expert import ExpertConfig, GeodesicExpert
-from nue.sim.explorer import ExplorerConfig, ExploringExpert
 from nue.sim.record import EpisodeRecord
 
 
@@ -46,47 +44,6 @@ class StepData:
     action: int
     info: dict[str, Any]
     env: ImageNavEnv
-
-
-EXPERT_KINDS = ("geodesic", "explore")
-"""``ExpertAgent(kind=...)``: the geodesic expert, or the exploring expert (``nue.sim.explorer``)."""
-
-
-class ExpertAgent:
-    """An expert as an :class:`Agent` (it reads the pose and the env's goal, never the maps).
-
-    ``kind="geodesic"`` (default): :class:`GeodesicExpert`; ``kind="explore"``:
-    :class:`nue.sim.explorer.ExploringExpert` (frontier exploration on what its depth frames saw until
-    the goal is in view, then the geodesic expert), configured by ``explorer``.
-    """
-
-    def __init__(self, config: ExpertConfig = ExpertConfig(), kind: str = "geodesic",
-                 explorer: ExplorerConfig | None = None):
-        if kind not in EXPERT_KINDS:
-            raise ValueError(f"unknown expert kind {kind!r}; expected one of {EXPERT_KINDS}")
-        self.config = config
-        self.kind = kind
-        self.explorer_config = explorer
-        self.expert: GeodesicExpert | ExploringExpert | None = None
-
-    def reset(self, env: ImageNavEnv, obs, seed: int = 0) -> None:
-        e = self.expert
-        if e is None or e.nav is not env.navgrid or e.task is not env.task or getattr(e, "floor_z", env.floor_z) != env.floor_z:
-            if self.kind == "explore":
-                self.expert = ExploringExpert(env.navgrid, env.task, self.explorer_config or ExplorerConfig(),
-                                              self.config, floor_z=env.floor_z)
-            else:
-                self.expert = GeodesicExpert(env.navgrid, env.task, self.config)
-        self.expert.reset(env.nav_goal_xy)
-
-    def act(self, obs, maps) -> int:
-        if self.kind == "explore":
-            return self.expert.act(obs["pose"], obs["depth"])
-        return self.expert.act(obs["pose"])
-
-    def executed(self, action: int) -> None:
-        """Told by a wrapper (noise injection) which action was actually executed this step."""
-        self.expert.executed(action)
 
 
 def run_episode(

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from nue.evaluate.runner import EvalConfig, run_eval
-from nue.policy.agent import NoisyAgent
-from nue.rollout import ExpertAgent, run_episode
+from nue.policy.agent import ExpertAgent, NoisyAgent
+from nue.rollout import run_episode
 from nue.sim.env import ImageNavEnv
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import save_episodes

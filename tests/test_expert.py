@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from nue.rollout import ExpertAgent, run_episode
+from nue.policy.agent import ExpertAgent
+from nue.rollout import run_episode
 from nue.sim.env import ImageNavEnv
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nue.rollout import ExpertAgent, run_episode
+from nue.policy.agent import ExpertAgent
+from nue.rollout import run_episode
 from nue.sim.env import ImageNavEnv
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 

@@ -201,7 +201,8 @@ class FakeMemory:
 
 
 def test_trace_recorder_on_the_agent_loop(box_scene, box_nav, box_renderer, tmp_path):
-    from nue.rollout import ExpertAgent, run_episode
+    from nue.policy.agent import ExpertAgent
+    from nue.rollout import run_episode
     from nue.sim.env import ImageNavEnv
     from nue.sim.camera import wrap_angle
     from nue.sim.episodes import Episode

@@ -9,7 +9,8 @@ import sys
 import pytest
 
 from nue.evaluate.metrics import aggregate
-from nue.rollout import ExpertAgent, run_episode
+from nue.policy.agent import ExpertAgent
+from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, generate_house
 from nue.scene.navgrid import NavGrid
 from nue.scene.scene import Scene

@@ -14,7 +14,8 @@ import math
 import pytest
 
 from nue.errors import EpisodeError, InvalidEpisodesError
-from nue.rollout import ExpertAgent, run_episode
+from nue.policy.agent import ExpertAgent
+from nue.rollout import run_episode
 from nue.sim.env import ImageNavEnv
 from nue.sim.episodes import Episode, Snap, read_episodes, validate_episode
 

@@ -25,12 +25,13 @@ import numpy as np
 
 from nue.evaluate import coverage as cov
 from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, read_records, record_diagnostics
-from nue.evaluate.metrics import EpisodeRecord, dts, spl, success
+from nue.evaluate.metrics import dts, spl, success
 from nue.evaluate.stats import paired_bootstrap, wilson_interval  # noqa: F401  (re-exported)
 from nue.evaluate.table import (  # noqa: F401  (re-exported)
     DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, method_label, order_methods,
     paper_table,
 )
+from nue.sim.record import EpisodeRecord
 
 METRIC_FNS = {"sr": success, "spl": spl, "dts": dts}
 

@@ -19,8 +19,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from nue.errors import CheckpointError, ConfigError, DataError
-from nue.jobs import Job, run_jobs
-from nue.train.collect import episode_seed
+from nue.jobs import Job, episode_seed, run_jobs
 
 _CACHE: dict = {}
 EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore"}
@@ -293,8 +292,8 @@ def _policy(payload, env):
 def eval_episode(job: Job) -> dict:
     """Worker: one episode of one method; returns its record as a dict."""
     from nue.evaluate.coverage import CoverageTracker
-    from nue.policy.agent import PolicyAgent
-    from nue.rollout import ExpertAgent, run_episode
+    from nue.policy.agent import ExpertAgent, PolicyAgent
+    from nue.rollout import run_episode
     from nue.sim.episodes import Episode
     from nue.sim.explorer import ExploringExpert
 
@@ -328,7 +327,8 @@ def eval_episode(job: Job) -> dict:
 
 def _record_maps(env, memory, p) -> list:
     """Maps the memory renders along the expert's run of the *other* episode (for ``swap_maps``)."""
-    from nue.rollout import ExpertAgent, run_episode
+    from nue.policy.agent import ExpertAgent
+    from nue.rollout import run_episode
     from nue.sim.episodes import Episode
 
     other = Episode.from_dict(p["other"])

@@ -14,8 +14,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-from nue.evaluate.metrics import EpisodeRecord, summarize
+from nue.evaluate.metrics import summarize
 from nue.evaluate.stats import wilson_interval
+from nue.sim.record import EpisodeRecord
 
 DIFFICULTIES = ("easy", "medium", "hard")
 PAPER_CSV = Path(__file__).with_name("paper_table1.csv")

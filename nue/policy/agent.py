@@ -1,7 +1,9 @@
-"""A trained policy as an agent of the shared loop: observation + memory maps -> action.
+"""The agents of the shared loop (:func:`nue.rollout.run_episode`): observation + memory maps -> action.
 
-The same ``prepare_input`` as in training turns the raw observation and the NeRF maps into the
-network's input; the recurrent state (Nav-A3C) is carried across steps and reset per episode.
+:class:`ExpertAgent` (geodesic or exploring expert), :class:`PolicyAgent` (a trained network: the same
+``prepare_input`` as in training turns the raw observation and the NeRF maps into its input; the
+recurrent state of Nav-A3C is carried across steps and reset per episode), :class:`MixedAgent`
+(DAgger's mix) and :class:`NoisyAgent` (DART noise injection).
 """
 
 from __future__ import annotations
@@ -9,8 +11,51 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from nue.policy.base import PolicyModel
+from nue.policy.base import PolicyModel, choose_actions
 from nue.policy.inputs import prepare_input
+from nue.sim.env import ImageNavEnv
+from nue.sim.expert import ExpertConfig, GeodesicExpert
+from nue.sim.explorer import ExplorerConfig, ExploringExpert
+
+EXPERT_KINDS = ("geodesic", "explore")
+"""``ExpertAgent(kind=...)``: the geodesic expert, or the exploring expert (``nue.sim.explorer``)."""
+
+
+class ExpertAgent:
+    """An expert as an :class:`Agent` (it reads the pose and the env's goal, never the maps).
+
+    ``kind="geodesic"`` (default): :class:`GeodesicExpert`; ``kind="explore"``:
+    :class:`nue.sim.explorer.ExploringExpert` (frontier exploration on what its depth frames saw until
+    the goal is in view, then the geodesic expert), configured by ``explorer``.
+    """
+
+    def __init__(self, config: ExpertConfig = ExpertConfig(), kind: str = "geodesic",
+                 explorer: ExplorerConfig | None = None):
+        if kind not in EXPERT_KINDS:
+            raise ValueError(f"unknown expert kind {kind!r}; expected one of {EXPERT_KINDS}")
+        self.config = config
+        self.kind = kind
+        self.explorer_config = explorer
+        self.expert: GeodesicExpert | ExploringExpert | None = None
+
+    def reset(self, env: ImageNavEnv, obs, seed: int = 0) -> None:
+        e = self.expert
+        if e is None or e.nav is not env.navgrid or e.task is not env.task or getattr(e, "floor_z", env.floor_z) != env.floor_z:
+            if self.kind == "explore":
+                self.expert = ExploringExpert(env.navgrid, env.task, self.explorer_config or ExplorerConfig(),
+                                              self.config, floor_z=env.floor_z)
+            else:
+                self.expert = GeodesicExpert(env.navgrid, env.task, self.config)
+        self.expert.reset(env.nav_goal_xy)
+
+    def act(self, obs, maps) -> int:
+        if self.kind == "explore":
+            return self.expert.act(obs["pose"], obs["depth"])
+        return self.expert.act(obs["pose"])
+
+    def executed(self, action: int) -> None:
+        """Told by a wrapper (noise injection) which action was actually executed this step."""
+        self.expert.executed(action)
 
 
 class PolicyAgent:
@@ -42,10 +87,7 @@ class PolicyAgent:
             out = self.model(inp, self.state)
         self.state = out.state
         self.last_aux = None if out.aux_angle is None else float(out.aux_angle[0])
-        if self.greedy:
-            return int(out.logits[0].argmax())
-        probs = torch.softmax(out.logits[0].float().cpu(), dim=-1)
-        return int(torch.multinomial(probs, 1, generator=self.generator)[0])
+        return int(choose_actions(out.logits, self.greedy, self.generator)[0])
 
 
 class MixedAgent:

@@ -53,6 +53,15 @@ def detach_state(state: State) -> State:
     return None if state is None else tuple(s.detach() for s in state)  # type: ignore[return-value]
 
 
+def choose_actions(logits: Tensor, greedy: bool = False, generator: torch.Generator | None = None) -> Tensor:
+    """Actions (B,) long from ``logits`` (B, A): argmax if ``greedy``, else a sample from softmax(logits)
+    (eq. 14), drawn on the ``generator``'s device (the logits move there)."""
+    if greedy:
+        return logits.argmax(dim=-1)
+    probs = torch.softmax(logits.float().to(generator.device if generator is not None else logits.device), dim=-1)
+    return torch.multinomial(probs, 1, generator=generator)[:, 0]
+
+
 class PolicyModel(nn.Module):
     """Base class: holds the config, implements ``forward_sequence`` by folding T into B, and ``act``."""
 
@@ -90,12 +99,7 @@ class PolicyModel(nn.Module):
         Call ``model.eval()`` first: batch norm uses its running statistics only then.
         """
         out = self.forward(inp, state, reset_mask)
-        if greedy:
-            actions = out.logits.argmax(dim=-1)
-        else:
-            probs = torch.softmax(out.logits.float(), dim=-1)
-            actions = torch.multinomial(probs, 1, generator=generator)[:, 0]
-        return actions, out.state
+        return choose_actions(out.logits, greedy, generator), out.state
 
     def _check_input(self, inp: PolicyInput) -> None:
         c = self.config

@@ -1,7 +1,7 @@
 """What one depth frame shows of the floor grid: the floor cells it sees and the cells it shows as obstacle.
 
 Per-frame geometry shared by the exploring expert (its own seen map) and the evaluation's coverage
-(``nue.evaluate.coverage`` re-exports these names). A floor cell is *seen* when the depth camera
+(the evaluation's coverage tracker re-exports these names). A floor cell is *seen* when the depth camera
 sees the floor there (not occluded, within ``max_range`` metres of the robot; see
 :func:`seen_floor_cells`); a cell is an *obstacle* cell when a depth point above the floor (a wall,
 furniture) lands in it (:func:`seen_obstacle_cells`). Grids are (M, M) planning cells of a

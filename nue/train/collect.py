@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import hashlib
 import json
-import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from nue.errors import DataError
-from nue.jobs import Job, run_jobs
+from nue.jobs import Job, episode_seed, run_jobs
+from nue.policy.agent import EXPERT_KINDS, ExpertAgent, MixedAgent, NoisyAgent, PolicyAgent
 from nue.train.episode_file import read_header, write_episode_file
 
 FORMAT = "nue-demos/1"
@@ -72,14 +72,6 @@ class CollectConfig:
             raise DataError(None, f"unknown expert {self.expert!r}; known: {', '.join(EXPERT_KINDS)}")
         if not 0.0 <= self.noise < 1.0:
             raise DataError(None, f"noise must be in [0, 1), got {self.noise}")
-
-
-EXPERT_KINDS = ("geodesic", "explore")
-
-
-def episode_seed(seed: int, scene: str, episode_id: str) -> int:
-    """Per-episode seed, stable across processes (CRC32, never Python's hash())."""
-    return int(np.random.SeedSequence([seed, zlib.crc32(f"{scene}/{episode_id}".encode())]).generate_state(1)[0])
 
 
 def data_layout(model_cfg) -> dict:
@@ -267,7 +259,7 @@ def _worker_objects(payload):
 def collect_episode(job: Job):
     """Worker: run one episode with the memory online; return (arrays, meta) for its file."""
     from nue.policy.config import get_model_config
-    from nue.rollout import ExpertAgent, run_episode
+    from nue.rollout import run_episode
     from nue.sim.episodes import Episode
 
     p = job.payload
@@ -285,11 +277,8 @@ def collect_episode(job: Job):
 
 def _make_agent(spec: dict, env):
     """The driving agent of a collection job: the expert or DAgger's mix, wrapped in noise injection."""
-    from nue.policy.agent import MixedAgent, NoisyAgent, PolicyAgent
-    from nue.rollout import ExpertAgent
-
     kind = spec.get("expert", "geodesic")
-    expert = ExpertAgent() if kind == "geodesic" else ExpertAgent(kind=kind)
+    expert = ExpertAgent(kind=kind)
     if spec["kind"] == "expert":
         agent = expert
     elif spec["kind"] == "dagger":
