@@ -7,13 +7,18 @@ import math
 import subprocess
 import sys
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
+import nue
+from nue.sim import make_env
 from nue.sim.env import ImageNavEnv
 from nue.sim.episodes import Episode
 from nue.sim.task import get_task
+
+from .conftest import BOX_ROOM
 
 
 def _episode(start, goal, **kw):
@@ -28,6 +33,19 @@ def env(box_scene, box_nav, box_renderer):
 
 def test_check_env(env):
     check_env(env, skip_render_check=True)
+
+
+def test_gym_make_and_make_env():
+    """``import nue`` registers ``nue/ImageNav-v0``; gym.make and make_env give the same episode as ImageNavEnv."""
+    made = gym.make(nue.ENV_ID, scene=str(BOX_ROOM), task="paper")
+    assert isinstance(made.unwrapped, ImageNavEnv) and made.unwrapped.task.name == "paper"
+    plain = make_env(BOX_ROOM, "paper", max_steps=7)
+    assert plain.task.max_steps == 7 and plain.task.success_radius == get_task("paper").success_radius
+    a, _ = made.reset(seed=3)
+    b, _ = plain.reset(seed=3)
+    for key in ("rgb", "depth", "pose", "goal"):
+        np.testing.assert_array_equal(a[key], b[key])
+    check_env(made.unwrapped, skip_render_check=True)
 
 
 def test_observation_contents(env):

@@ -15,8 +15,10 @@ Reward (for RL users; imitation learning ignores it): decrease of geodesic dista
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
+from pathlib import Path
 from typing import Any, Sequence
 
 import gymnasium as gym
@@ -272,3 +274,14 @@ class ImageNavEnv(gym.Env):
             renderer=self.renderer,
             bins=(b,),
         )[0]
+
+
+def make_env(scene: Scene | str | Path, task: TaskConfig | str = "paper", max_steps: int = 0,
+             episodes: Sequence[Episode] | None = None) -> ImageNavEnv:
+    """The environment of a scene (a loaded :class:`Scene` or a Gibson-layout folder) and a task preset,
+    with the preset's step limit replaced by ``max_steps`` when it is > 0 (smoke runs, model selection);
+    the env builds its own navigation grid and renderer. The one setup path of eval, collect and the demo."""
+    task = get_task(task)
+    if max_steps:
+        task = dataclasses.replace(task, max_steps=max_steps)
+    return ImageNavEnv(scene if isinstance(scene, Scene) else Scene.load(scene), task, episodes)
