@@ -12,7 +12,7 @@ Writes ``benchmarks/results/nerf.json``. Protocol (one run, all presets on the s
 - AUROC at step s: I_u of the maps of the frames (s - AUROC_WINDOW, s] (each rendered before its
   own update, at the preset's map size) separating never-seen pixels (positive) from seen ones,
   pooled over the window and the houses; "seen" from the simulator's depth and poses only
-  (:func:`nue.nerf.evaluation.seen_mask`). ``auroc_paper_iu`` scores with sum w^2 beta^2 alone;
+  (:func:`nue.nerf.quality.seen_mask`). ``auroc_paper_iu`` scores with sum w^2 beta^2 alone;
 - cost (a separate timing pass, presets interleaved per thread count): with ``TIMING_FRAMES`` frames in
   the replay, median wall time of ``render_maps`` plus median of ``step`` (observe + update), on 1 and
   on 2 torch threads; analytic GEMM FLOPs per step; achieved GFLOP/s against a matmul peak measured
@@ -39,7 +39,7 @@ from _common import CACHE, write_result  # noqa: E402
 
 from nue.scene.generator import ensure_house  # noqa: E402
 from nue.nerf import OnlineNeRF, get_memory  # noqa: E402
-from nue.nerf.evaluation import auroc, psnr, seen_mask  # noqa: E402
+from nue.nerf.quality import auroc, psnr, seen_mask  # noqa: E402
 from nue.nerf.rays import map_pixels  # noqa: E402
 from nue.policy.agent import ExpertAgent  # noqa: E402
 from nue.scene.navgrid import NavGrid  # noqa: E402

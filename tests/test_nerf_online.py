@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,12 +11,11 @@ import torch
 
 from nue.errors import CheckpointError, ConfigError
 from nue.nerf import MEMORY_PRESETS, MemoryConfig, MemoryInputError, OnlineNeRF, get_memory
-from nue.nerf.evaluation import psnr, seen_mask
+from nue.nerf.quality import psnr, seen_mask
 from nue.nerf.rays import map_pixels
 from nue.sim.task import CameraConfig
 
-sys.path.insert(0, str(Path(__file__).parent))
-from test_nerf_support import box_room_frame, box_room_trajectory  # noqa: E402
+from .nerf_box_room import box_room_frame, box_room_trajectory
 
 torch.set_num_threads(1)
 

@@ -4,19 +4,16 @@ the mesh (corner pixels included), and the rays equal ``nue.sim.camera.camera_ra
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 from nue.nerf.rays import EpisodeFrame, PixelRays, map_pixels
-from nue.sim.camera import camera_rays
+from nue.sim.camera import camera_rays, depth_to_points
 from nue.sim.task import CameraConfig
 
-sys.path.insert(0, str(Path(__file__).parent))
-from test_nerf_support import BOX, ROOM, box_room_frame  # noqa: E402
+from .nerf_box_room import BOX, ROOM, box_room_frame
 
 torch.set_num_threads(1)
 
@@ -122,3 +119,14 @@ def test_episode_frame_is_the_start_camera():
     # a second pose 1 m ahead of the start (world +y here) sits at episode x = 1
     m2 = pr.episode_from_camera((2.0, 2.0, math.radians(90)), frame).numpy()
     assert np.allclose(m2[:3, 3], [1.0, 0.0, 0.0], atol=1e-6)
+
+
+def test_box_room_points_lie_on_faces():
+    """Fixture self-check: back-projected depth lands on the room's or the box's faces."""
+    camera = CameraConfig().scaled(60, 45)
+    pose = (-2.0, -1.6, 0.5)
+    _, depth = box_room_frame(pose, camera)
+    p = depth_to_points(depth, pose, camera)
+    on_room = np.min(np.abs(np.concatenate([p - ROOM[0], ROOM[1] - p], -1)), -1) < 1e-6
+    inside_box_slab = np.all((p >= BOX[0] - 1e-6) & (p <= BOX[1] + 1e-6), -1)
+    assert np.all(on_room | inside_box_slab)

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from nue.nerf.encoding import PositionalEncoding
-from nue.nerf.evaluation import auroc, psnr
+from nue.nerf.quality import auroc, psnr
 from nue.nerf.loss import memory_loss, uncertainty_nll
 from nue.nerf.rays import SamplerConfig, depth_guided_samples
 from nue.nerf.rendering import (

@@ -105,10 +105,6 @@ class GridField(nn.Module):
         self.colour_dir = nn.Linear(self.dir_enc.out_dim, c.feature_dim, bias=False)
         self.colour_out = nn.Linear(c.feature_dim, 3)
 
-    def grid_parameters(self) -> list[nn.Parameter]:
-        """Parameters with sparse gradients (train with :class:`RowAdam`)."""
-        return [self.table]
-
     def dense_parameters(self) -> list[nn.Parameter]:
         """Parameters with dense gradients (the colour MLP)."""
         return [p for n, p in self.named_parameters() if n != "table"]

@@ -42,7 +42,7 @@ def render_features(weights: torch.Tensor, feature: torch.Tensor) -> torch.Tenso
     return torch.einsum("rn,rnc->rc", weights, feature)
 
 
-def render_depth(weights: torch.Tensor, t: torch.Tensor, residual: torch.Tensor | None = None) -> torch.Tensor:
+def render_depth(weights: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     """Expected distance along the ray ``D = sum_i w_i t_i / sum_i w_i`` (normalised by the weight sum
     so leftover transmittance does not pull it to 0): ``(R, N)``, ``(R, N)`` -> ``(R,)``.
 

@@ -31,6 +31,7 @@ from nue.scene.house_furnish import furnish, hang_pictures
 from nue.scene.house_layout import Plan, PlanFailure, PlanParams, make_plan
 from nue.scene.house_mesh import Material, build_mesh, write_obj
 from nue.scene.house_trav import check_house, map_size, trav_map
+from nue.scene.navgrid import ROBOT_RADIUS
 from nue.scene.scene import MESH_NAME, Scene, content_hash
 
 GENERATOR_VERSION = 3
@@ -84,7 +85,7 @@ class HouseConfig:
     """Range of pictures per room (one more in rooms over 20 m^2; hallways: one per 3.5 m)."""
     picture_heights: tuple[float, float] = (1.1, 1.9)
     """Lowest bottom and highest top edge of a picture above the floor."""
-    robot_radius: float = 0.18
+    robot_radius: float = ROBOT_RADIUS
     """Robot radius: free space eroded by it must stay one piece that reaches every room."""
     min_passage: float = 0.5
     """Furniture leaves passages at least this wide: each room's floor eroded by half of it stays one piece."""

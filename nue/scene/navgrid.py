@@ -29,11 +29,15 @@ _FMM_SEED_RADIUS = 1.5  # cells: fast marching starts from a circle of this radi
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
 
 
+ROBOT_RADIUS = 0.18
+"""Radius of the robot's disc, metres: the one value the navigation grid and the house generator use."""
+
+
 @dataclass(frozen=True)
 class NavGridConfig:
     """How a traversability map becomes a navigation grid."""
 
-    robot_radius: float = 0.18
+    robot_radius: float = ROBOT_RADIUS
     """Radius of the robot's disc, metres: free space is eroded by it."""
     cell_size: float = 0.05
     """Planning-grid cell size, metres (a multiple of the map's 0.01 m)."""

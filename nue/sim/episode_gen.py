@@ -108,7 +108,7 @@ def _try_one(nav, task, config, rng, centres, lo, hi, renderer, floor_z, scene, 
     _, depth = renderer.render((goal[0], goal[1], goal_yaw), floor_z)
     if float(np.median(depth)) < config.min_goal_depth:
         return None
-    ratio = geo / euc if euc > 0 else 1.0
+    difficulty, path_type = task.bins.label(euc, geo)
     return Episode.from_poses(
         episode_id,
         scene.name,
@@ -117,8 +117,8 @@ def _try_one(nav, task, config, rng, centres, lo, hi, renderer, floor_z, scene, 
         z=floor_z,
         euclidean_distance=euc,
         geodesic_distance=geo,
-        difficulty=task.bins.classify(key) or "",
-        path_type="straight" if ratio < task.bins.straight_ratio else "curved",
+        difficulty=difficulty,
+        path_type=path_type,
         scene_hash=scene.content_hash,
     )
 

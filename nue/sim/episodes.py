@@ -311,7 +311,8 @@ def _mark_duplicates(parsed: list) -> list:
 
 def _labelled(fields: dict, task: TaskConfig) -> Episode:
     """An episode from its fields, with difficulty and path type from ``task``'s bins."""
-    return relabel(Episode(**fields), task)
+    difficulty, path_type = task.bins.label(fields["euclidean_distance"], fields["geodesic_distance"])
+    return Episode(**fields, difficulty=difficulty, path_type=path_type)
 
 
 def _from_habitat(items: list, name: str, task: TaskConfig, path) -> list[Episode | InvalidEpisode]:
@@ -356,11 +357,3 @@ def _from_authors(item, i: int, scene: str, task: TaskConfig) -> Episode | Inval
 AUTHORS_KEYS = ("startXYZ", "startQuat", "endXYZ", "endQuat", "dist", "pathDist")
 """Fields of one entry of the authors' format (the last two optional)."""
 
-
-def relabel(ep: Episode, task: TaskConfig) -> Episode:
-    """The episode with difficulty and path type recomputed from ``task``'s bins."""
-    key = ep.euclidean_distance if task.bins.key == "euclidean" else ep.geodesic_distance
-    ratio = ep.geodesic_distance / ep.euclidean_distance if ep.euclidean_distance > 0 else 1.0
-    return replace(
-        ep, difficulty=task.bins.classify(key) or "", path_type="straight" if ratio < task.bins.straight_ratio else "curved"
-    )

@@ -78,6 +78,15 @@ class DifficultyBins:
                 return name
         return None
 
+    def label(self, euclidean: float, geodesic: float) -> tuple[str, str]:
+        """``(difficulty, path_type)`` of a start-goal pair: the bin of the ``key`` distance ('' outside every
+        bin) and ``straight`` when geodesic / euclidean < ``straight_ratio`` (1 at zero distance), else ``curved``.
+
+        Example (the paper's bins): euclidean 4, geodesic 5.2 -> ("medium", "curved")."""
+        ratio = geodesic / euclidean if euclidean > 0 else 1.0
+        difficulty = self.classify(euclidean if self.key == "euclidean" else geodesic) or ""
+        return difficulty, "straight" if ratio < self.straight_ratio else "curved"
+
     def range_of(self, name: str) -> tuple[float, float]:
         for n, lo, hi in self.edges:
             if n == name:
@@ -109,8 +118,6 @@ class TaskConfig:
     """Step limit; reaching it truncates the episode."""
     bins: DifficultyBins = field(default_factory=DifficultyBins)
     """Difficulty bins of start-goal distance."""
-    robot_radius: float = 0.18
-    """Radius of the robot's disc, metres; the traversability map is eroded by it."""
     collision: str = "slide"
     """What a blocked forward move does: ``slide`` along the obstacle or ``stop`` at it."""
     greedy: bool = False

@@ -110,11 +110,6 @@ class DemoSet:
             counts += np.bincount(np.asarray(a["action"], dtype=np.int64), minlength=num_actions)[:num_actions]
         return counts
 
-    def locate(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Flat step indices -> (episode index, step within episode)."""
-        ep = np.searchsorted(self.offsets, flat, side="right") - 1
-        return ep, flat - self.offsets[ep]
-
     def batch(self, episodes: np.ndarray, steps: np.ndarray, model_cfg, device="cpu") -> Batch:
         """Gather the given (episode, step) pairs, any leading shape, into a :class:`Batch`."""
         shape = episodes.shape

@@ -1,4 +1,4 @@
-"""Test fixture for the NeRF tests: an analytic box room ray-cast in numpy (RGB-D frames + a trajectory).
+"""Test helper for the NeRF tests (imported, not collected): an analytic box room ray-cast in numpy (RGB-D frames + a trajectory).
 
 Not a renderer for the package: a closed-form scene whose geometry is known exactly, for unit tests
 of the memory that must run without the EGL renderer.
@@ -60,15 +60,3 @@ def box_room_trajectory(n_steps: int = 24) -> list[np.ndarray]:
             pose[2] += math.radians(15.0) * (1 if a == "L" else -1)
     return poses
 
-
-def test_box_room_points_lie_on_faces():
-    """Fixture self-check: back-projected depth lands on the room's or the box's faces."""
-    from nue.sim.camera import depth_to_points
-
-    camera = CameraConfig().scaled(60, 45)
-    pose = (-2.0, -1.6, 0.5)
-    _, depth = box_room_frame(pose, camera)
-    p = depth_to_points(depth, pose, camera)
-    on_room = np.min(np.abs(np.concatenate([p - ROOM[0], ROOM[1] - p], -1)), -1) < 1e-6
-    inside_box_slab = np.all((p >= BOX[0] - 1e-6) & (p <= BOX[1] + 1e-6), -1)
-    assert np.all(on_room | inside_box_slab)
