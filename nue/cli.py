@@ -299,6 +299,58 @@ def demo(
     typer.echo(f"figures and records in {out}/")
 
 
+@app.command("view")
+def view_cmd(
+    scene: Optional[Path] = typer.Option(None, help="Live run: scene folder."),
+    episodes: Optional[Path] = typer.Option(None, help="Live run: episode file; replay: the file holding the record's episode "
+                                            "(default EPISODES_DIR/<scene>.json)."),
+    episode: str = typer.Option("0", help="Live run: episode id or index in the file."),
+    checkpoint: Optional[Path] = typer.Option(None, help="Live run: policy checkpoint (default: the geodesic expert). "
+                                              "Replay with --maps: the memory's preset and initial weights."),
+    records: list[Path] = typer.Option([], "--records", help="Replay: record files (JSON lines); repeatable."),
+    key: Optional[str] = typer.Option(None, help="Replay: the record's key (method/scene/episode_id)."),
+    maps: bool = typer.Option(False, help="Replay: re-run the memory along the recorded poses to show I_u / I_cog."),
+    scenes_root: Path = typer.Option(Path("data/scenes"), help="Replay: where the record's house is."),
+    episodes_dir: Path = typer.Option(Path("episodes/val"), help="Replay: folder of per-house episode files."),
+    task: str = typer.Option("paper", help="Task preset."),
+    seed: int = typer.Option(0, help="Live run: episode seed."),
+    max_steps: int = typer.Option(0, help="Live run: override the step limit (0 = the preset's)."),
+    port: int = typer.Option(9090, help="Port of the web page."),
+    grpc_port: int = typer.Option(9876, help="Port of the data stream the page reads."),
+    save: Optional[Path] = typer.Option(None, help="Also write the recording here (.rrd; opens with `rerun FILE`)."),
+    serve: bool = typer.Option(True, help="Serve the page (--no-serve: only --save)."),
+    screenshot: Optional[Path] = typer.Option(None, help="Write a PNG of the page (headless chromium) after the episode, then exit."),
+    serve_seconds: float = typer.Option(0.0, help="Serve this long after the episode (0 = until Ctrl-C; with --screenshot: exit)."),
+):
+    """Watch an episode in the browser (house, robot, frames, memory, uncertainty, time slider): run live, or replay a record."""
+    from nue.errors import ConfigError
+
+    try:
+        import rerun  # noqa: F401
+    except ImportError:
+        raise ConfigError("nue view", "needs the viewer library: pip install 'nue[view]' (rerun-sdk)") from None
+    from nue.viz.view import LiveSource, ReplaySource, ViewConfig, view
+
+    A.non_negative("--max-steps", max_steps)
+    if save:
+        check_output_file(save, "the recording")
+    if screenshot:
+        check_output_file(screenshot, "the screenshot")
+    if records or key:
+        if not (records and key):
+            raise ConfigError("--records", "a replay needs both --records and --key")
+        source = ReplaySource(records=tuple(map(str, records)), key=key, scenes_root=str(scenes_root),
+                              episodes=str(episodes) if episodes else None, episodes_dir=str(episodes_dir), task=task,
+                              maps=maps, checkpoint=str(checkpoint) if checkpoint else None)
+    else:
+        if scene is None or episodes is None:
+            raise ConfigError("--scene", "a live run needs --scene and --episodes (or replay with --records and --key)")
+        source = LiveSource(scene=str(scene), episodes=str(episodes), episode=episode,
+                            checkpoint=str(checkpoint) if checkpoint else None, task=task, seed=seed, max_steps=max_steps)
+    cfg = ViewConfig(port=port, grpc_port=grpc_port, serve=serve, save=str(save) if save else None)
+    view(cfg, source, screenshot=str(screenshot) if screenshot else None, serve_seconds=serve_seconds, echo=typer.echo)
+
+
 def main() -> None:
     from nue.jobs import InjectedFailure
 

@@ -1,0 +1,315 @@
+"""``nue view``: an episode in the browser — run live through the shared agent loop, or replayed from a record.
+
+The viewer is Rerun's web viewer, served by the ``rerun-sdk`` wheel itself (no network needed). One
+recording stream has up to two sinks: a gRPC server the page reads while the episode runs
+(``ViewConfig.grpc_port``; the page itself on ``ViewConfig.port``) and an ``.rrd`` file that opens later
+(``rerun rec.rrd``, or ``rerun --web-viewer rec.rrd`` for a browser). What is drawn:
+:mod:`nue.viz.view_scene`; screenshots: :mod:`nue.viz.view_shot`.
+
+A live run is :func:`nue.rollout.run_episode` with an ``on_step`` callback that logs each step (the
+maps the policy saw, before the memory learns the frame). A replay reads the poses of a record's
+``extra['trajectory']`` and re-renders the frames there; the policy does not run, and the memory is
+re-run along the recorded poses only when asked (``ReplaySource.maps``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import socket
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from urllib.parse import quote
+
+import numpy as np
+import rerun as rr
+
+from nue.errors import ConfigError, DataError, EpisodeError
+from nue.sim.record import EpisodeRecord
+from nue.viz.view_scene import EpisodeLogger, SceneViewConfig, blueprint
+
+
+@dataclass(frozen=True)
+class ViewConfig:
+    """Where the viewer serves and what it writes."""
+
+    port: int = 9090
+    """Port of the web page (all interfaces)."""
+    grpc_port: int = 9876
+    """Port of the data stream the page reads (Rerun's gRPC server, all interfaces)."""
+    serve: bool = True
+    """Serve the page; False only writes ``save``."""
+    save: str | None = None
+    """Also write the recording to this ``.rrd`` file."""
+    scene: SceneViewConfig = SceneViewConfig()
+    """What is drawn and how finely."""
+
+
+@dataclass(frozen=True)
+class LiveSource:
+    """Run an episode now: a checkpoint's policy with its memory, or the geodesic expert with the memory alongside."""
+
+    scene: str
+    """Scene folder (Gibson layout)."""
+    episodes: str
+    """Episode file (any format ``nue`` reads)."""
+    episode: str = "0"
+    """Episode id, or its index in the file."""
+    checkpoint: str | None = None
+    """Policy checkpoint; None = the geodesic expert."""
+    task: str = "paper"
+    """Task preset."""
+    seed: int = 0
+    """Episode seed (memory ray sampling, action sampling)."""
+    max_steps: int = 0
+    """Override the preset's step limit (0 = keep it)."""
+
+
+@dataclass(frozen=True)
+class ReplaySource:
+    """Replay a recorded episode from its stored trajectory, without running the policy."""
+
+    records: tuple[str, ...]
+    """Record files (JSON lines from ``nue eval`` / ``nue expert``)."""
+    key: str
+    """The record's ``extra['key']`` (``method/scene/episode_id``), or ``scene/episode_id``."""
+    scenes_root: str = "data/scenes"
+    """Where the record's scene folder is (validation houses are generated there if missing)."""
+    episodes: str | None = None
+    """Episode file holding the record's episode; default ``episodes_dir/<scene>.json``."""
+    episodes_dir: str = "episodes/val"
+    """Folder of per-house episode files, used when ``episodes`` is None."""
+    task: str = "paper"
+    """Task preset the record was made with."""
+    maps: bool = False
+    """Re-run the memory along the recorded poses to show I_u / I_cog (the policy still does not run)."""
+    checkpoint: str | None = None
+    """With ``maps``: take the memory's preset and initial weights from this checkpoint (default: ``fast``)."""
+
+
+# ----------------------------------------------------------------------------------------- serving
+def check_port(port: int, option: str) -> None:
+    """:class:`ConfigError` (``error: <option>: port N is taken ...``) unless a server can listen on ``port``."""
+    if not 0 < port < 65536:
+        raise ConfigError(option, f"port {port} is outside 1..65535")
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("0.0.0.0", port))
+        except OSError:
+            raise ConfigError(option, f"port {port} is taken (another program listens there); choose another") from None
+
+
+def page_url(cfg: ViewConfig, host: str = "localhost") -> str:
+    """The page's address, pointing the viewer at the recording's gRPC stream."""
+    return f"http://{host}:{cfg.port}/?url={quote(f'rerun+http://{host}:{cfg.grpc_port}/proxy', safe='')}"
+
+
+class Viewer:
+    """A recording stream with its sinks (the served page and/or an ``.rrd`` file)."""
+
+    def __init__(self, cfg: ViewConfig, name: str):
+        if not cfg.serve and not cfg.save:
+            raise ConfigError("--no-serve", "nothing to do: give --save FILE.rrd, or serve the page")
+        if cfg.serve:
+            check_port(cfg.port, "--port")
+            check_port(cfg.grpc_port, "--grpc-port")
+            if cfg.port == cfg.grpc_port:
+                raise ConfigError("--grpc-port", "must differ from --port")
+        self.cfg = cfg
+        self.rec = rr.RecordingStream("nue", recording_id=name)
+        sinks = []
+        if cfg.serve:
+            sinks.append(rr.GrpcServerSink(port=cfg.grpc_port))
+        if cfg.save:
+            Path(cfg.save).parent.mkdir(parents=True, exist_ok=True)
+            sinks.append(rr.FileSink(str(cfg.save)))
+        self.rec.set_sinks(*sinks, default_blueprint=blueprint())
+        self.rec.send_recording_name(name)
+        if cfg.serve:
+            rr.serve_web_viewer(web_port=cfg.port, open_browser=False)
+        self.url = page_url(cfg) if cfg.serve else None
+
+    def logger(self, env) -> EpisodeLogger:
+        """A logger for the current episode of ``env`` (after its reset)."""
+        log = EpisodeLogger(self.rec, env.task.camera, env.navgrid, env.floor_z, self.cfg.scene)
+        log.begin(env.scene, env.goal_xy, env.goal_image, env.task.success_radius)
+        return log
+
+    def close(self) -> None:
+        """Flush everything to the sinks (the ``.rrd`` file is complete after this)."""
+        self.rec.flush()
+        if self.cfg.save:
+            self.rec.disconnect()
+
+
+# ------------------------------------------------------------------------------------------ sources
+def _task(name: str, max_steps: int = 0):
+    from nue.sim.task import get_task
+
+    task = get_task(name)
+    return dataclasses.replace(task, max_steps=max_steps) if max_steps else task
+
+
+def pick_episode(episodes: list, which: str, where) -> object:
+    """The episode with id ``which``, else the one at index ``which``; :class:`EpisodeError` if neither."""
+    for e in episodes:
+        if e.episode_id == which:
+            return e
+    if which.isdigit() and int(which) < len(episodes):
+        return episodes[int(which)]
+    raise EpisodeError(where, f"no episode {which!r} (ids {', '.join(e.episode_id for e in episodes[:5])}"
+                              f"{', ...' if len(episodes) > 5 else ''}; or an index below {len(episodes)})")
+
+
+def _memory_from(checkpoint: str | None, camera):
+    """The online NeRF memory: a checkpoint's preset and initial weights, else the ``fast`` preset."""
+    from nue.nerf.config import MemoryConfig
+    from nue.nerf.online import OnlineNeRF
+
+    if checkpoint is None:
+        return OnlineNeRF("fast", camera)
+    from nue.train.checkpoint import load_checkpoint
+
+    ckpt = load_checkpoint(checkpoint)
+    return OnlineNeRF(MemoryConfig.from_dict(ckpt["memory"]), camera, init_state=ckpt["memory_init"])
+
+
+def run_live(viewer: Viewer, src: LiveSource) -> EpisodeRecord:
+    """Run ``src``'s episode through :func:`nue.rollout.run_episode`, logging every step; returns its record."""
+    from nue.rollout import run_episode
+    from nue.scene.navgrid import NavGrid
+    from nue.scene.scene import Scene
+    from nue.sim.env import ImageNavEnv
+    from nue.sim.episodes import load_episodes
+
+    task = _task(src.task, src.max_steps)
+    scene = Scene.load(src.scene)
+    nav = NavGrid.from_scene(scene)
+    episode = pick_episode(load_episodes(src.episodes, scene, task, navgrid=nav), src.episode, src.episodes)
+    env = ImageNavEnv(scene, task, [episode], navgrid=nav)
+    if src.checkpoint is None:
+        from nue.policy.agent import ExpertAgent
+
+        agent, memory, method = ExpertAgent(), _memory_from(None, task.camera), "expert"
+    else:
+        from nue.policy.agent import PolicyAgent
+        from nue.train.checkpoint import check_compatible, load_policy
+
+        model, ckpt = load_policy(src.checkpoint)
+        check_compatible(ckpt, src.checkpoint, task=_task(src.task), scenes={scene.name: scene.content_hash})
+        agent, method = PolicyAgent(model, greedy=task.greedy), ckpt["model_config"]["name"]
+        memory = _memory_from(src.checkpoint, task.camera) if model.config.uses_memory_maps else None
+    log: list[EpisodeLogger] = []
+
+    def on_step(s) -> None:
+        if s.t == 0:
+            log.append(viewer.logger(s.env))
+        log[0].step(s.t, s.obs["pose"], s.obs["rgb"], s.obs["depth"], s.maps, s.info.get("geodesic_distance"))
+
+    record = run_episode(env, agent, episode=episode, memory=memory, seed=src.seed, on_step=on_step, method=method)
+    final = env.trajectory_so_far().poses[-1]
+    rgb, depth = env.renderer.render(final, env.floor_z)
+    log[0].step(record.steps, final, rgb, depth, None, record.final_geodesic)
+    return record
+
+
+def find_record(paths, key: str) -> EpisodeRecord:
+    """The record whose ``extra['key']`` is ``key`` (or ends in ``/key``); :class:`DataError` if none or several."""
+    import json
+
+    hits, n = [], 0
+    for path in paths:
+        for i, line in enumerate(Path(path).read_text().splitlines(), 1):
+            if not line.strip():
+                continue
+            try:
+                d = json.loads(line)
+                k = d.get("extra", {}).get("key") or f"{d['method']}/{d['scene']}/{d['episode_id']}"
+            except (ValueError, KeyError, TypeError, AttributeError):
+                raise DataError(path, f"line {i} is not an episode record") from None
+            n += 1
+            if k == key or k.endswith("/" + key):
+                hits.append((k, d))
+    if len(hits) != 1:
+        why = "no record" if not hits else f"{len(hits)} records ({', '.join(k for k, _ in hits[:3])})"
+        raise DataError(paths[0] if len(paths) == 1 else "--records", f"{why} with key {key!r} among {n}")
+    return EpisodeRecord.from_dict(hits[0][1])
+
+
+def run_replay(viewer: Viewer, src: ReplaySource) -> np.ndarray:
+    """Log the recorded episode at its recorded poses; returns those poses (T + 1, 3)."""
+    from nue.scene.generator import SPLITS, ensure_house
+    from nue.scene.navgrid import NavGrid
+    from nue.scene.scene import Scene
+    from nue.sim.env import ImageNavEnv
+    from nue.sim.episodes import load_episodes
+
+    record = find_record(src.records, src.key)
+    traj = record.trajectory()
+    if traj is None:
+        raise DataError(src.key, "the record keeps no per-step trajectory (made before trajectories were stored)")
+    folder = Path(src.scenes_root) / record.scene
+    split, _, index = record.scene.rpartition("_")
+    if not folder.exists() and split in SPLITS and index.isdigit():
+        folder = ensure_house(split, int(index), src.scenes_root)
+    scene = Scene.load(folder)
+    task = _task(src.task)
+    nav = NavGrid.from_scene(scene)
+    ep_file = src.episodes or str(Path(src.episodes_dir) / f"{record.scene}.json")
+    episode = pick_episode(load_episodes(ep_file, scene, task, navgrid=nav), record.episode_id, ep_file)
+    env = ImageNavEnv(scene, task, [episode], navgrid=nav)
+    env.reset(seed=0, options={"episode": episode})
+    log = viewer.logger(env)
+    seed = int(record.extra.get("seed", 0))
+    memory = _memory_from(src.checkpoint, task.camera) if src.maps else None
+    if memory is not None:
+        memory.reset(seed, start_pose=traj.poses[0], floor_z=env.floor_z)
+    field = nav.distance_field(env.nav_goal_xy)
+    for t, pose in enumerate(traj.poses):
+        rgb, depth = env.renderer.render(pose, env.floor_z)
+        maps = memory.render_maps(pose, depth[..., None], floor_z=env.floor_z) if memory is not None else None
+        log.step(t, pose, rgb, depth, maps, nav.lookup(field, pose[:2]))
+        if memory is not None:
+            memory.step(rgb, depth[..., None], pose, floor_z=env.floor_z)
+    return traj.poses
+
+
+def view(cfg: ViewConfig, source: LiveSource | ReplaySource, screenshot: str | None = None,
+         serve_seconds: float = 0.0, echo=print) -> None:
+    """Serve / save one episode; with ``screenshot``, write a PNG of the page after the episode and return
+    (after ``serve_seconds`` more, if given); else keep serving for ``serve_seconds`` (0 = until Ctrl-C)."""
+    from nue.viz.view_shot import find_chromium, screenshot_page
+
+    if screenshot and not cfg.serve:
+        raise ConfigError("--screenshot", "needs the page: drop --no-serve")
+    if screenshot and find_chromium() is None:
+        raise ConfigError("--screenshot", "needs chromium on PATH (apt-get install chromium)")
+    name = source.key if isinstance(source, ReplaySource) else f"{Path(source.scene).name}/{source.episode}"
+    viewer = Viewer(cfg, name)
+    if viewer.url:
+        echo(f"viewer: {viewer.url}")
+    if isinstance(source, ReplaySource):
+        poses = run_replay(viewer, source)
+        echo(f"replayed {source.key}: {len(poses) - 1} steps")
+    else:
+        rec = run_live(viewer, source)
+        echo(f"{rec.method}: {'success' if rec.success else 'failure'} in {rec.steps} steps, path {rec.path_length:.2f} m")
+    viewer.close()
+    if cfg.save:
+        echo(f"recording: {cfg.save} (open later with: rerun {cfg.save})")
+    if screenshot:
+        seconds = screenshot_page(viewer.url, screenshot)
+        echo(f"screenshot: {screenshot} (page ready after {seconds:.1f} s)")
+        if serve_seconds <= 0:
+            return
+    if cfg.serve:
+        try:
+            if serve_seconds > 0:
+                time.sleep(serve_seconds)
+            else:
+                echo("serving; Ctrl-C to stop")
+                while True:
+                    time.sleep(3600)
+        except KeyboardInterrupt:
+            pass
