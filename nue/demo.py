@@ -18,29 +18,33 @@ import numpy as np
 
 from nue.evaluate.coverage import CoverageTracker
 from nue.evaluate.metrics import aggregate, format_table
+from nue.nerf.online import OnlineNeRF
 from nue.policy.agent import ExpertAgent
 from nue.rollout import StepData, run_episode
 from nue.scene.generator import ensure_house
-from nue.scene.navgrid import NavGrid
 from nue.scene.scene import Scene
-from nue.sim.env import ImageNavEnv
+from nue.sim.env import ImageNavEnv, make_env
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import load_episodes, save_episodes
-from nue.sim.renderer import Renderer
 from nue.sim.task import get_task
+from nue.train.checkpoint import load_agent
+from nue.viz.figures import (fig6_uncertainty_timeline, fig7_goal_direction, fig8_gradcam, gradcam_uncertainty,
+                             save_episode_gif, save_figure)
 from nue.viz.topdown import save_frames, save_topdown
 from nue.viz.trace import TraceRecorder
 
 DEFAULT_CHECKPOINT = Path("checkpoints/nue.pt")
 
 
-def _episodes(scene, task, house: int, seed: int, nav, renderer, episodes_dir: Path):
+def _episodes(env: ImageNavEnv, task, seed: int, episodes_dir: Path):
     """One episode per difficulty: the first of each bin in the committed validation file, if any."""
+    scene = env.scene
     path = episodes_dir / f"{scene.name}.json"
     if path.is_file():
         eps = load_episodes(path, scene, task)
     else:
-        eps = generate_episodes(scene, task, EpisodeGenConfig(per_bin=1), seed=seed, navgrid=nav, renderer=renderer)
+        eps = generate_episodes(scene, task, EpisodeGenConfig(per_bin=1), seed=seed, navgrid=env.navgrid,
+                                renderer=env.renderer)
     first = {}
     for e in eps:
         first.setdefault(e.difficulty, e)
@@ -51,34 +55,21 @@ def run_demo(out: Path, house: int = 0, task_name: str = "paper", seed: int = 0,
              checkpoint: Path | None = None, max_steps: int = 0, episodes_dir: Path = Path("episodes/val"),
              frames_per_episode: int = 4, use_default_checkpoint: bool = True) -> str:
     """Run the demo; write figures, records and a metrics table under ``out``; return the table."""
-    from nue.nerf.config import MemoryConfig
-    from nue.nerf.online import OnlineNeRF
-    from nue.viz.figures import fig6_uncertainty_timeline, fig7_goal_direction, save_episode_gif, save_figure
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     scenes_root = Path(scenes_root) if scenes_root else out.parent / "scenes"
     if checkpoint is None and use_default_checkpoint and DEFAULT_CHECKPOINT.is_file():
         checkpoint = DEFAULT_CHECKPOINT
     scene = Scene.load(ensure_house("val", house, scenes_root))
-    task = get_task(task_name)
-    if max_steps:
-        task = dataclasses.replace(task, max_steps=max_steps)
-    nav = NavGrid.from_scene(scene)
-    renderer = Renderer(scene, task.camera)
-    episodes = _episodes(scene, get_task(task_name), house, seed, nav, renderer, Path(episodes_dir))
+    env = make_env(scene, task_name, max_steps)
+    task = env.task
+    episodes = _episodes(env, get_task(task_name), seed, Path(episodes_dir))
     save_episodes(out / "episodes.json", episodes, task)
-    env = ImageNavEnv(scene, task, episodes, navgrid=nav, renderer=renderer)
 
     model = None
     if checkpoint is not None:
-        from nue.policy.agent import PolicyAgent
-        from nue.train.checkpoint import check_compatible, load_policy
-
-        model, ckpt = load_policy(checkpoint)
-        check_compatible(ckpt, checkpoint, task=get_task(task_name), scenes={scene.name: scene.content_hash})
-        memory = OnlineNeRF(MemoryConfig.from_dict(ckpt["memory"]), task.camera, init_state=ckpt["memory_init"])
-        agent, method = PolicyAgent(model, greedy=task.greedy), ckpt["model_config"]["name"]
+        agent, memory = load_agent(checkpoint, task, scenes={scene.name: scene.content_hash}, memory=True)
+        model, method = agent.model, agent.model.config.name
     else:
         memory, agent, method = OnlineNeRF("fast", task.camera), ExpertAgent(), "expert"
 
@@ -87,7 +78,7 @@ def run_demo(out: Path, house: int = 0, task_name: str = "paper", seed: int = 0,
         frames: list[dict] = []
         inputs: dict[int, object] = {}
         recorder = TraceRecorder(aux_source=(lambda s: agent.last_aux) if model is not None else None)
-        coverage = CoverageTracker(task.camera, nav, env.floor_z)
+        coverage = CoverageTracker(task.camera, env.navgrid, env.floor_z)
 
         def on_step(s: StepData) -> None:
             recorder(s)
@@ -116,8 +107,6 @@ def run_demo(out: Path, house: int = 0, task_name: str = "paper", seed: int = 0,
         if model is not None and model.config.uses_i_u and not cams:
             cams = _gradcams(model, inputs)
     if cams:
-        from nue.viz.figures import fig8_gradcam
-
         save_figure(fig8_gradcam([c[0] for c in cams], [c[1] for c in cams], [c[2] for c in cams]), out / "fig8_gradcam.png")
     save_topdown(out / "topdown.png", scene, runs, title=f"{scene.name}: {method}, task '{task.name}'")
     with open(out / "records.jsonl", "w") as f:
@@ -130,8 +119,6 @@ def run_demo(out: Path, house: int = 0, task_name: str = "paper", seed: int = 0,
 
 def _gradcams(model, inputs: dict) -> list:
     """(I_u, Grad-CAM, title) at up to three recorded steps of an episode."""
-    from nue.viz.figures import gradcam_uncertainty
-
     steps = sorted(inputs)
     picks = [steps[i] for i in sorted({0, len(steps) // 2, len(steps) - 1})] if steps else []
     out = []

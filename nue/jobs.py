@@ -8,8 +8,9 @@ A killed run therefore loses at most the jobs in flight; rerunning the same comm
 Local workers watch their parent and exit as soon as it is gone, so killing the driver (even with
 ``kill -9``) leaves no worker, and then no resource tracker, behind.
 
-Failure injection for tests: with ``NUE_FAIL_AFTER=k`` in the environment, the driver raises
-:class:`InjectedFailure` after k results were written in this run (as if the job were killed).
+Failure injection for tests, through the one hook :func:`fail_point`: with ``NUE_FAIL_AFTER=k`` in the
+environment, the driver raises :class:`InjectedFailure` after k results were written in this run (as if
+the job were killed); training uses the same hook (``NUE_FAIL_AT_STEP``).
 """
 
 from __future__ import annotations
@@ -21,16 +22,35 @@ import time
 import zlib
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence, TypeVar
 
 import numpy as np
 from tqdm import tqdm
 
 FAIL_AFTER_ENV = "NUE_FAIL_AFTER"
+T = TypeVar("T")
 
 
 class InjectedFailure(RuntimeError):
-    """Raised on purpose (``NUE_FAIL_AFTER``) to test that interrupted jobs resume."""
+    """Raised on purpose (``NUE_FAIL_AFTER``, ``NUE_FAIL_AT_STEP``) to test that interrupted jobs resume."""
+
+
+def fail_point(env_var: str, count: int, what: str) -> None:
+    """Test hook: raise :class:`InjectedFailure` once ``count`` reaches the positive integer in the environment
+    variable ``env_var`` (unset or 0: never), as if the process were killed right after ``what``."""
+    limit = int(os.environ.get(env_var, "0") or 0)
+    if limit and count >= limit:
+        raise InjectedFailure(f"{env_var}={limit}: stopping after {what}")
+
+
+_WORKER_OBJECTS: dict = {}
+
+
+def worker_cached(key: tuple, build: Callable[[], T]) -> T:
+    """``build()`` once per process and ``key`` (scenes, envs, policies, memories a worker reuses across jobs)."""
+    if key not in _WORKER_OBJECTS:
+        _WORKER_OBJECTS[key] = build()
+    return _WORKER_OBJECTS[key]
 
 
 def episode_seed(seed: int, scene: str, episode_id: str) -> int:
@@ -103,7 +123,6 @@ def run_jobs(
     keys = [j.key for j in jobs]
     if len(set(keys)) != len(keys):
         raise ValueError("job keys must be unique")
-    fail_after = int(os.environ.get(FAIL_AFTER_ENV, "0") or 0)
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc=desc, unit="ep", disable=not progress,
                dynamic_ncols=True, smoothing=0.1)
     written = 0
@@ -113,8 +132,7 @@ def run_jobs(
         on_result(job, result)
         written += 1
         bar.update(1)
-        if fail_after and written >= fail_after:
-            raise InjectedFailure(f"{FAIL_AFTER_ENV}={fail_after}: stopping after {written} results")
+        fail_point(FAIL_AFTER_ENV, written, f"{written} results")
 
     by_key = {j.key: j for j in todo}
     try:

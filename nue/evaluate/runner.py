@@ -10,7 +10,6 @@ the same house (a control that shows whether the memory is used).
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import os
@@ -19,9 +18,18 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from nue.errors import CheckpointError, ConfigError, DataError
-from nue.jobs import Job, episode_seed, run_jobs
-
-_CACHE: dict = {}
+from nue.evaluate.coverage import CoverageTracker
+from nue.jobs import Job, episode_seed, run_jobs, worker_cached
+from nue.policy.agent import ExpertAgent
+from nue.rollout import run_episode
+from nue.scene.generator import ensure_house
+from nue.scene.navgrid import NavGrid
+from nue.scene.scene import Scene
+from nue.sim.env import make_env
+from nue.sim.episodes import Episode, read_episodes
+from nue.sim.explorer import ExploringExpert
+from nue.sim.task import get_task
+from nue.train.checkpoint import check_compatible, load_agent, load_checkpoint
 EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore"}
 """Method specs that run an expert instead of a checkpoint -> ``ExpertAgent(kind=...)``."""
 
@@ -64,8 +72,6 @@ def parse_method(spec: str) -> tuple[str, str | None]:
         if not name.strip() or not path.strip():
             raise ConfigError("--checkpoint", f"{spec!r}: expected name=path with a non-empty name and path")
         return name, path
-    from nue.train.checkpoint import load_checkpoint
-
     return load_checkpoint(spec)["model_config"]["name"], spec
 
 
@@ -81,17 +87,13 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
     """One job per (episode, method). Every episode is validated on its house's navigation grid; with
     ``cfg.skip_invalid`` invalid ones are left out and appended to ``skipped``
     (:class:`~nue.sim.episodes.InvalidEpisode`), else all of a file are named in one error."""
-    from nue.scene.generator import ensure_house
-    from nue.scene.navgrid import NavGrid
-    from nue.scene.scene import Scene
-    from nue.sim.episodes import read_episodes
-
     parsed = [parse_method(m) for m in methods]
     names = [name for name, _ in parsed]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise ConfigError("--checkpoint", f"method name {twice[0]!r} given twice; name them apart with name=path")
-    digests = {ckpt: checkpoint_digest(ckpt, cfg.task) for _, ckpt in parsed if ckpt is not None}
+    checked = {ckpt: checked_checkpoint(ckpt, cfg.task) for _, ckpt in parsed if ckpt is not None}
+    digests = {ckpt: sha for ckpt, (_, sha) in checked.items()}
     files = episode_files(cfg.episodes_dir)
     jobs = []
     for f in files:
@@ -102,6 +104,8 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
         except (ValueError, IndexError):
             folder = Path(cfg.scenes_root) / name
         scene = Scene.load(folder)
+        for ckpt, (contents, _) in checked.items():  # a house whose content changed since training is refused here
+            check_compatible(contents, ckpt, scenes={scene.name: scene.content_hash})
         loaded = read_episodes(f, scene, cfg.task, navgrid=NavGrid.from_scene(scene), skip_invalid=cfg.skip_invalid)
         if skipped is not None:
             skipped.extend(loaded.skipped)
@@ -122,14 +126,13 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
     return jobs
 
 
-def checkpoint_digest(path: str, task: str) -> str:
+def checked_checkpoint(path: str, task: str) -> tuple[dict, str]:
     """Check a checkpoint once in the driver (readable, finite weights, trained for ``task``) before any
-    episode runs; returns its :func:`file_sha256`."""
-    from nue.sim.task import get_task
-    from nue.train.checkpoint import check_compatible, load_checkpoint
-
-    check_compatible(load_checkpoint(path), path, task=get_task(task))
-    return file_sha256(path)
+    episode runs (:func:`plan_eval` then checks each house against it); returns its contents and
+    :func:`file_sha256`."""
+    contents = load_checkpoint(path)
+    check_compatible(contents, path, task=get_task(task))
+    return contents, file_sha256(path)
 
 
 def file_sha256(path: str) -> str:
@@ -255,48 +258,18 @@ class MapReplay:
 
 
 def _env(payload):
-    from nue.scene.navgrid import NavGrid
-    from nue.scene.scene import Scene
-    from nue.sim.env import ImageNavEnv
-    from nue.sim.renderer import Renderer
-    from nue.sim.task import get_task
-
-    key = ("env", payload["scene"], payload["task"], payload.get("max_steps", 0))
-    if key not in _CACHE:
-        task = get_task(payload["task"])
-        if payload.get("max_steps"):
-            task = dataclasses.replace(task, max_steps=payload["max_steps"])
-        scene = Scene.load(payload["scene"])
-        _CACHE[key] = ImageNavEnv(scene, task, navgrid=NavGrid.from_scene(scene), renderer=Renderer(scene, task.camera))
-    return _CACHE[key]
+    return worker_cached(("env", payload["scene"], payload["task"], payload.get("max_steps", 0)),
+                         lambda: make_env(payload["scene"], payload["task"], payload.get("max_steps", 0)))
 
 
 def _policy(payload, env):
-    from nue.nerf.config import MemoryConfig
-    from nue.nerf.online import OnlineNeRF
-    from nue.train.checkpoint import check_compatible, load_policy
-
-    key = ("policy", payload["checkpoint"], payload["device"])
-    if key not in _CACHE:
-        model, ckpt = load_policy(payload["checkpoint"], payload["device"])
-        memory = None
-        if model.config.uses_memory_maps:
-            mcfg = MemoryConfig.from_dict(ckpt["memory"])
-            memory = OnlineNeRF(mcfg, env.task.camera, init_state=ckpt["memory_init"], device=payload["device"])
-        _CACHE[key] = (model, ckpt, memory)
-    model, ckpt, memory = _CACHE[key]
-    check_compatible(ckpt, payload["checkpoint"], task=env.task, scenes={env.scene.name: env.scene.content_hash})
-    return model, ckpt, memory
+    """The checkpoint's agent and memory, loaded once per worker (:func:`plan_eval` checked the houses)."""
+    return worker_cached(("policy", payload["checkpoint"], payload["device"], env.task.name),
+                         lambda: load_agent(payload["checkpoint"], env.task, payload["device"]))
 
 
 def eval_episode(job: Job) -> dict:
     """Worker: one episode of one method; returns its record as a dict."""
-    from nue.evaluate.coverage import CoverageTracker
-    from nue.policy.agent import ExpertAgent, PolicyAgent
-    from nue.rollout import run_episode
-    from nue.sim.episodes import Episode
-    from nue.sim.explorer import ExploringExpert
-
     p = job.payload
     env = _env(p)
     episode = Episode.from_dict(p["episode"])
@@ -305,9 +278,8 @@ def eval_episode(job: Job) -> dict:
         kind = EXPERT_METHODS.get(p["method"].split("+")[0], "geodesic")
         agent, memory = ExpertAgent(kind=kind), None
     else:
-        model, ckpt, memory = _policy(p, env)
-        agent = PolicyAgent(model, greedy=env.task.greedy, device=p["device"])
-        extra["git_commit"] = ckpt.get("git_commit", "")
+        agent, memory = _policy(p, env)
+        extra["git_commit"] = agent.git_commit
         if p.get("other") and memory is not None:
             memory = MapReplay(_record_maps(env, memory, p))
     tracker = CoverageTracker(env.task.camera, env.navgrid, env.floor_z) if p["coverage"] else None
@@ -327,10 +299,6 @@ def eval_episode(job: Job) -> dict:
 
 def _record_maps(env, memory, p) -> list:
     """Maps the memory renders along the expert's run of the *other* episode (for ``swap_maps``)."""
-    from nue.policy.agent import ExpertAgent
-    from nue.rollout import run_episode
-    from nue.sim.episodes import Episode
-
     other = Episode.from_dict(p["other"])
     maps: list = []
     run_episode(env, ExpertAgent(), episode=other, memory=memory, seed=p["seed"], on_step=lambda s: maps.append(s.maps))

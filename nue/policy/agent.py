@@ -61,8 +61,10 @@ class ExpertAgent:
 class PolicyAgent:
     """Acts with ``model`` (sampling from softmax(logits), or argmax if ``greedy``)."""
 
-    def __init__(self, model: PolicyModel, greedy: bool = False, device: str | torch.device = "cpu"):
+    def __init__(self, model: PolicyModel, greedy: bool = False, device: str | torch.device = "cpu", git_commit: str = ""):
         self.model = model.to(device).eval()
+        self.git_commit = git_commit
+        """The commit the weights were trained at ('' unknown); recorded with evaluation records."""
         self.config = model.config
         self.greedy = greedy
         self.device = torch.device(device)

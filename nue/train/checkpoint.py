@@ -3,11 +3,13 @@
 A checkpoint embeds the task preset, the memory (NeRF) config and its fixed initial weights, the
 model config, the demonstration manifest's hash and scene hashes, the git commit and the training
 config. Saving is atomic (temporary file + rename). ``load_policy`` rebuilds the network;
-``check_compatible`` refuses a task/memory preset or scene set that differs from the stored one.
+``check_compatible`` refuses a task/memory preset or scene set that differs from the stored one;
+``load_agent`` gives the agent and memory of the shared loop (eval, DAgger collection, the demo).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import tempfile
@@ -16,6 +18,12 @@ from pathlib import Path
 import torch
 
 from nue.errors import CheckpointError
+from nue.nerf.config import MemoryConfig
+from nue.nerf.online import OnlineNeRF
+from nue.policy import build_model
+from nue.policy.agent import PolicyAgent
+from nue.policy.config import ModelConfig
+from nue.sim.task import TaskConfig
 
 FORMAT = "nue-checkpoint/1"
 
@@ -81,9 +89,6 @@ def _non_finite(state, prefix: str = "") -> str:
 
 def load_policy(path, device="cpu"):
     """(model in eval mode, checkpoint dict) from a checkpoint file."""
-    from nue.policy import build_model
-    from nue.policy.config import ModelConfig
-
     ckpt = load_checkpoint(path)
     model = build_model(ModelConfig.from_dict(ckpt["model_config"]))
     try:
@@ -91,6 +96,25 @@ def load_policy(path, device="cpu"):
     except RuntimeError as exc:
         raise CheckpointError(path, f"weights do not fit the stored model config ({exc})") from None
     return model.to(device).eval(), ckpt
+
+
+def load_agent(checkpoint, task: TaskConfig, device: str | torch.device = "cpu", *, scenes: dict[str, str] | None = None,
+               memory: bool | None = None, greedy: bool | None = None) -> tuple[PolicyAgent, OnlineNeRF | None]:
+    """The policy agent of a checkpoint and its online NeRF memory (the stored config and fixed initial
+    weights), both on ``device``, after :func:`check_compatible` with ``task`` and ``scenes``.
+
+    ``memory``: None = a memory only when the model reads its maps, True = always (figures), False = never
+    (the caller brings its own). ``greedy``: None = the task's rule (``task.greedy``). The agent's
+    ``git_commit`` is the commit the weights were trained at.
+    """
+    model, ckpt = load_policy(checkpoint, device)
+    check_compatible(ckpt, checkpoint, task=task, scenes=scenes)
+    nerf = None
+    if memory or (memory is None and model.config.uses_memory_maps):
+        nerf = OnlineNeRF(MemoryConfig.from_dict(ckpt["memory"]), task.camera, init_state=ckpt["memory_init"], device=device)
+    agent = PolicyAgent(model, greedy=task.greedy if greedy is None else greedy, device=device,
+                        git_commit=ckpt.get("git_commit", ""))
+    return agent, nerf
 
 
 def check_compatible(ckpt: dict, path, task=None, memory=None, scenes: dict[str, str] | None = None) -> None:
@@ -110,10 +134,6 @@ def check_compatible(ckpt: dict, path, task=None, memory=None, scenes: dict[str,
 def policy_meta(task, memory_cfg, model_cfg, scenes: dict[str, str], manifest_hash: str = "",
                 train_config: dict | None = None, data: dict | None = None) -> dict:
     """Everything a checkpoint carries besides weights (see the module docstring)."""
-    import dataclasses
-
-    from nue.nerf.online import OnlineNeRF
-
     return {
         "task": dataclasses.asdict(task),
         "memory": memory_cfg.to_dict(),

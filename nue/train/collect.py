@@ -19,12 +19,23 @@ from pathlib import Path
 import numpy as np
 
 from nue.errors import DataError
-from nue.jobs import Job, episode_seed, run_jobs
-from nue.policy.agent import EXPERT_KINDS, ExpertAgent, MixedAgent, NoisyAgent, PolicyAgent
+from nue.jobs import Job, episode_seed, run_jobs, worker_cached
+from nue.nerf.config import get_memory
+from nue.nerf.online import OnlineNeRF
+from nue.policy.agent import EXPERT_KINDS, ExpertAgent, MixedAgent, NoisyAgent
+from nue.policy.config import get_model_config
+from nue.policy.inputs import prepare_input, resize_area
+from nue.rollout import run_episode
+from nue.scene.generator import SPLITS, ensure_house
+from nue.scene.scene import Scene
+from nue.sim.env import make_env
+from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
+from nue.sim.episodes import Episode, load_episodes, save_episodes
+from nue.sim.task import get_task
+from nue.train.checkpoint import load_agent
 from nue.train.episode_file import read_header, write_episode_file
 
 FORMAT = "nue-demos/1"
-_CACHE: dict = {}
 
 
 @dataclass(frozen=True)
@@ -82,12 +93,6 @@ def data_layout(model_cfg) -> dict:
 
 def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], dict]:
     """Houses, episodes (generated once, stored under ``episodes/``) and the manifest of a collection."""
-    from nue.nerf.config import get_memory
-    from nue.policy.config import get_model_config
-    from nue.scene.generator import SPLITS, ensure_house
-    from nue.scene.scene import Scene
-    from nue.sim.task import get_task
-
     task = get_task(cfg.task)
     model_cfg = get_model_config(cfg.model).for_task(task)
     memory = get_memory(cfg.memory)
@@ -155,9 +160,6 @@ def _first_per_bin(episodes: list[dict], k: int) -> list[dict]:
 
 
 def _episodes_for(scene, task, per_bin: int, seed: int, scenes_root: Path) -> list[dict]:
-    from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
-    from nue.sim.episodes import load_episodes, save_episodes
-
     path = scenes_root / "episodes" / f"{scene.name}_{task.name}_s{seed}_n{per_bin}.json"
     if path.is_file():
         eps = load_episodes(path, scene, task)
@@ -235,33 +237,15 @@ def summarize_collection(out: Path, jobs) -> dict:
 
 # ------------------------------------------------------------------------------------------- worker
 def _worker_objects(payload):
-    """Per-process cache of scenes (scene, navgrid, renderer, env) and memories."""
-    from nue.nerf.online import OnlineNeRF
-    from nue.scene.navgrid import NavGrid
-    from nue.scene.scene import Scene
-    from nue.sim.env import ImageNavEnv
-    from nue.sim.renderer import Renderer
-    from nue.sim.task import get_task
-
-    key = (payload["scene"], payload["task"])
-    if key not in _CACHE:
-        task = get_task(payload["task"])
-        scene = Scene.load(payload["scene"])
-        nav = NavGrid.from_scene(scene)
-        _CACHE[key] = ImageNavEnv(scene, task, navgrid=nav, renderer=Renderer(scene, task.camera))
-    env = _CACHE[key]
-    mkey = ("memory", json.dumps(payload["memory"], sort_keys=True), payload["device"])
-    if mkey not in _CACHE:
-        _CACHE[mkey] = OnlineNeRF(payload["memory"], env.task.camera, device=payload["device"])
-    return env, _CACHE[mkey]
+    """The job's env and memory (the manifest's config, its own initial weights), built once per worker."""
+    env = worker_cached(("env", payload["scene"], payload["task"]), lambda: make_env(payload["scene"], payload["task"]))
+    memory = worker_cached(("memory", json.dumps(payload["memory"], sort_keys=True), payload["device"]),
+                           lambda: OnlineNeRF(payload["memory"], env.task.camera, device=payload["device"]))
+    return env, memory
 
 
 def collect_episode(job: Job):
     """Worker: run one episode with the memory online; return (arrays, meta) for its file."""
-    from nue.policy.config import get_model_config
-    from nue.rollout import run_episode
-    from nue.sim.episodes import Episode
-
     p = job.payload
     env, memory = _worker_objects(p)
     episode = Episode.from_dict(p["episode"])
@@ -282,13 +266,10 @@ def _make_agent(spec: dict, env):
     if spec["kind"] == "expert":
         agent = expert
     elif spec["kind"] == "dagger":
-        from nue.train.checkpoint import load_policy
-
-        key = ("policy", spec["checkpoint"])
-        if key not in _CACHE:
-            _CACHE[key] = load_policy(spec["checkpoint"])[0]
+        policy, _ = worker_cached(("policy", spec["checkpoint"], env.task.name),
+                                  lambda: load_agent(spec["checkpoint"], env.task, memory=False, greedy=False))
         limit = int(spec.get("max_factor", 3) * spec["expert_steps"]) if spec.get("expert_steps") else None
-        agent = MixedAgent(PolicyAgent(_CACHE[key], greedy=False), expert, spec["beta"], policy_steps=limit)
+        agent = MixedAgent(policy, expert, spec["beta"], policy_steps=limit)
     else:
         raise ValueError(f"unknown agent kind {spec['kind']!r}")
     return NoisyAgent(agent, spec["noise"], env.task.actions) if spec.get("noise") else agent
@@ -304,9 +285,6 @@ class DemoRecorder:
     goal: dict | None = None
 
     def __call__(self, s) -> None:
-        from nue.policy.config import get_model_config
-        from nue.policy.inputs import prepare_input, resize_area
-
         cfg = self.config
         maps = s.maps
         inp = prepare_input(s.obs["rgb"], s.obs["depth"], s.obs["goal"], maps.i_u, maps.i_cog, cfg)
