@@ -215,8 +215,8 @@ class OnlineNeRF:
         samples = depth_guided_samples(bundle.ranges, n_samples, self.config.sampler, generator)
         pts = bundle.origins[:, None, :] + samples.t[..., None] * bundle.directions[:, None, :]
         out: FieldOutputs = self.field(pts * (1.0 / self.config.radius), bundle.directions)
-        weights, residual = compositing_weights(out.density, samples.deltas)
-        return samples, out, weights, residual
+        weights, transmittance = compositing_weights(out.density, samples.deltas)
+        return samples, out, weights, transmittance
 
     def update(self, n_iters: int | None = None) -> UpdateStats:
         """Run ``n_iters`` (default: the preset's K) training iterations on rays drawn from the replay."""
@@ -229,12 +229,12 @@ class OnlineNeRF:
         self.field.train()
         for _ in range(n_iters):
             bundle, target = self._sample_training_rays(cfg.train_rays)
-            samples, out, weights, residual = self._query(bundle, cfg.train_samples, self.generator)
+            samples, out, weights, transmittance = self._query(bundle, cfg.train_samples, self.generator)
             ray_var = render_uncertainty(weights, out.variance) + beta_min
             depth_pred = None
             if cfg.depth_weight > 0:  # expected termination, leftover transmittance ending at the band's far end
                 t_far = samples.t[:, -1] + 0.5 * samples.deltas[:, -1]
-                depth_pred = (weights * samples.t).sum(dim=-1) + residual * t_far
+                depth_pred = (weights * samples.t).sum(dim=-1) + transmittance * t_far
             terms = memory_loss(
                 render_rgb(weights, out.rgb), target, ray_var, out.density, cfg.density_weight,
                 depth_pred, bundle.ranges, cfg.depth_weight,
@@ -288,25 +288,18 @@ class OnlineNeRF:
         cfg = self.config
         self.field.eval()
         chunk = max(1, cfg.render_chunk // max(cfg.render_samples, 1))
-        parts = []
+        parts: dict[str, list[torch.Tensor]] = {"i_u": [], "rgb": [], "depth": [], "transmittance": [], "i_cog": []}
         for s in range(0, pix.numel(), chunk):
             sub = RayBundle(bundle.origins[s : s + chunk], bundle.directions[s : s + chunk], bundle.ranges[s : s + chunk])
-            samples, out, w, res = self._query(sub, cfg.render_samples, None)
-            parts.append(
-                torch.cat(
-                    [
-                        render_uncertainty(w, out.variance, res, cfg.unseen_variance)[:, None],
-                        render_rgb(w, out.rgb),
-                        render_depth(w, samples.t)[:, None],
-                        res[:, None],
-                        render_features(w, out.feature),
-                    ],
-                    dim=1,
-                )
-            )
-        flat = torch.cat(parts).T.reshape(-1, height, width)
-        z = flat[4:5] / self.pixel_rays.range_per_z[pix].reshape(1, height, width)
-        return MemoryMaps(i_u=flat[0:1], rgb=flat[1:4], depth=z, transmittance=flat[5:6], i_cog=flat[6:])
+            samples, out, w, transmittance = self._query(sub, cfg.render_samples, None)
+            parts["i_u"].append(render_uncertainty(w, out.variance, transmittance, cfg.unseen_variance)[:, None])
+            parts["rgb"].append(render_rgb(w, out.rgb))
+            parts["depth"].append(render_depth(w, samples.t)[:, None])
+            parts["transmittance"].append(transmittance[:, None])
+            parts["i_cog"].append(render_features(w, out.feature))
+        maps = {k: torch.cat(v).T.reshape(-1, height, width) for k, v in parts.items()}  # (P, C) chunks -> (C, h, w)
+        maps["depth"] = maps["depth"] / self.pixel_rays.range_per_z[pix].reshape(1, height, width)  # range -> z-depth
+        return MemoryMaps(**maps)
 
     def flops_per_step(self) -> dict[str, float]:
         """Analytic GEMM FLOPs per environment step of this preset: training (forward + backward = 3x

@@ -19,6 +19,7 @@ import numpy as np  # noqa: E402
 from matplotlib.colors import LinearSegmentedColormap  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
+from nue.viz.plot import save_figure  # noqa: E402,F401  (re-exported: figures are saved through it)
 from nue.viz.topdown import draw_map, draw_trajectory  # noqa: E402
 from nue.viz.trace import EpisodeTrace, cog_to_rgb  # noqa: E402
 
@@ -26,15 +27,6 @@ PROGRESS_CMAP = LinearSegmentedColormap.from_list("progress", ["#ffd700", "#ff00
 """Yellow (start) to red (end), as the paper's Fig. 7."""
 MOMENT_COLOURS = ("#00a0ff", "#00c853", "#ff9100", "#d500f9", "#ff1744")
 """Marker colours of the five moments t1..t5 in Fig. 6."""
-
-
-def save_figure(fig, path, dpi: int = 110) -> Path:
-    """Save ``fig`` as PNG at ``path`` (parents created) and close it."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return path
 
 
 def pick_moments(n_steps: int, k: int = 5) -> np.ndarray:

@@ -12,6 +12,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from nue.scene.scene import Scene  # noqa: E402
+from nue.viz.plot import save_figure  # noqa: E402
 
 
 def map_extent(scene: Scene, floor: int = 0, margin: float = 0.5) -> tuple[float, float, float, float]:
@@ -65,11 +66,7 @@ def save_topdown(path, scene: Scene, runs: Sequence[dict], floor: int = 0, title
         ax.legend(loc="best", fontsize=8)
     ax.set_title(title or scene.name)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
 def save_frames(path, frames: Sequence[dict], goal: np.ndarray, max_depth: float = 5.0) -> Path:
@@ -91,8 +88,4 @@ def save_frames(path, frames: Sequence[dict], goal: np.ndarray, max_depth: float
         ax.set_yticks([])
     axes[1, 1].set_ylabel("depth (0-5 m)", fontsize=9)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)
