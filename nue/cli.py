@@ -321,6 +321,7 @@ def view_cmd(
     serve: bool = typer.Option(True, help="Serve the page (--no-serve: only --save)."),
     screenshot: Optional[Path] = typer.Option(None, help="Write a PNG of the page (headless chromium) after the episode, then exit."),
     serve_seconds: float = typer.Option(0.0, help="Serve this long after the episode (0 = until Ctrl-C; with --screenshot: exit)."),
+    screenshot_timeout: float = typer.Option(120.0, help="Give up on the screenshot when the page is not ready after this many seconds."),
 ):
     """Watch an episode in the browser (house, robot, frames, memory, uncertainty, time slider): run live, or replay a record."""
     from nue.errors import ConfigError
@@ -348,7 +349,8 @@ def view_cmd(
         source = LiveSource(scene=str(scene), episodes=str(episodes), episode=episode,
                             checkpoint=str(checkpoint) if checkpoint else None, task=task, seed=seed, max_steps=max_steps)
     cfg = ViewConfig(port=port, grpc_port=grpc_port, serve=serve, save=str(save) if save else None)
-    view(cfg, source, screenshot=str(screenshot) if screenshot else None, serve_seconds=serve_seconds, echo=typer.echo)
+    view(cfg, source, screenshot=str(screenshot) if screenshot else None, serve_seconds=serve_seconds,
+         screenshot_timeout=screenshot_timeout, echo=typer.echo)
 
 
 def main() -> None:

@@ -276,9 +276,10 @@ def run_replay(viewer: Viewer, src: ReplaySource) -> np.ndarray:
 
 
 def view(cfg: ViewConfig, source: LiveSource | ReplaySource, screenshot: str | None = None,
-         serve_seconds: float = 0.0, echo=print) -> None:
-    """Serve / save one episode; with ``screenshot``, write a PNG of the page after the episode and return
-    (after ``serve_seconds`` more, if given); else keep serving for ``serve_seconds`` (0 = until Ctrl-C)."""
+         serve_seconds: float = 0.0, screenshot_timeout: float = 120.0, echo=print) -> None:
+    """Serve / save one episode; with ``screenshot``, write a PNG of the page after the episode (waiting at
+    most ``screenshot_timeout`` s for the page) and return (after ``serve_seconds`` more, if given); else
+    keep serving for ``serve_seconds`` (0 = until Ctrl-C)."""
     from nue.viz.view_shot import find_chromium, screenshot_page
 
     if screenshot and not cfg.serve:
@@ -299,7 +300,10 @@ def view(cfg: ViewConfig, source: LiveSource | ReplaySource, screenshot: str | N
     if cfg.save:
         echo(f"recording: {cfg.save} (open later with: rerun {cfg.save})")
     if screenshot:
-        seconds = screenshot_page(viewer.url, screenshot)
+        try:
+            seconds = screenshot_page(viewer.url, screenshot, timeout=screenshot_timeout)
+        except TimeoutError as exc:
+            raise ConfigError("--screenshot", str(exc)) from None
         echo(f"screenshot: {screenshot} (page ready after {seconds:.1f} s)")
         if serve_seconds <= 0:
             return

@@ -112,13 +112,13 @@ class DevTools:
 def screenshot_page(url: str, out, ready: Callable[[np.ndarray], bool] | None = None, timeout: float = 120.0,
                     interval: float = 1.0, width: int = 1600, height: int = 1000) -> float:
     """Load ``url`` in headless Chromium and write a PNG to ``out`` once ``ready(pixels)`` holds (default: the
-    page shows content and did not change since the previous capture). Returns the seconds from navigation
+    page shows content and did not change over the last two captures). Returns the seconds from navigation
     to the ready page; TimeoutError (the last capture still written) if it is not ready within ``timeout``."""
     browser = DevTools(width, height)
     try:
         t0 = time.perf_counter()
         browser.call("Page.navigate", {"url": url}, page=True)
-        previous = None
+        previous, same = None, 0
         while True:
             try:
                 png = browser.capture()
@@ -131,7 +131,8 @@ def screenshot_page(url: str, out, ready: Callable[[np.ndarray], bool] | None = 
             if ready is not None:
                 ok = ready(pixels)
             else:
-                ok = shows_content(pixels) and previous is not None and np.array_equal(pixels, previous)
+                same = same + 1 if previous is not None and np.array_equal(pixels, previous) else 0
+                ok = shows_content(pixels) and same >= 2
             elapsed = time.perf_counter() - t0
             if ok or elapsed > timeout:
                 with open(out, "wb") as f:

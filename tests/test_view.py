@@ -1,0 +1,132 @@
+"""``nue view``: a replay reproduces a record's poses, the exported .rrd opens with Rerun's reader and holds
+every view, a taken port is a one-line error, and headless Chromium sees the scene (trajectory colour)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import socket
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rerun")
+
+from nue.policy.agent import ExpertAgent
+from nue.rollout import run_episode
+from nue.sim.env import ImageNavEnv
+from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
+from nue.sim.episodes import save_episodes
+from nue.sim.task import get_task
+from nue.viz.view import ReplaySource, ViewConfig, find_record, view
+from nue.viz.view_scene import TRAJECTORY_COLOUR
+from nue.viz.view_shot import find_chromium, png_pixels, shows_content
+
+from .conftest import BOX_ROOM, FIXTURES
+
+
+@pytest.fixture(scope="module")
+def episode_file(tmp_path_factory, box_scene, box_nav, box_renderer):
+    path = tmp_path_factory.mktemp("view") / "box_room.json"
+    eps = generate_episodes(box_scene, "paper", EpisodeGenConfig(per_bin=1), seed=4, navgrid=box_nav, renderer=box_renderer)
+    save_episodes(path, eps[:1], "paper")
+    return path, eps[0]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("", 0))
+        return s.getsockname()[1]
+
+
+def _nue(*args, timeout=240):
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    return subprocess.run([sys.executable, "-m", "nue.cli", *map(str, args)], capture_output=True, text=True,
+                          env=env, timeout=timeout)
+
+
+def _column(path, entity: str, component: str):
+    """(steps, values) of one component of one entity in an .rrd file, read with Rerun's own reader."""
+    from rerun.chunk import RrdReader
+
+    steps, values = [], []
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path != entity or chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        col = next(n for n in names if n.endswith(component))
+        steps += batch.column(names.index("step")).to_pylist()
+        values += batch.column(names.index(col)).to_pylist()
+    order = np.argsort(steps)
+    return np.asarray(steps)[order], [values[i] for i in order]
+
+
+def test_replay_reproduces_recorded_poses(tmp_path, box_scene, box_nav, box_renderer, episode_file):
+    eps_path, ep = episode_file
+    task = dataclasses.replace(get_task("paper"), max_steps=12)
+    env = ImageNavEnv(box_scene, task, [ep], navgrid=box_nav, renderer=box_renderer)
+    record = run_episode(env, ExpertAgent(), episode=ep, method="expert")
+    live_poses = env.trajectory_so_far().poses
+    records = tmp_path / "records.jsonl"
+    records.write_text(json.dumps(record.to_dict()) + "\n")
+    key = f"expert/box_room/{ep.episode_id}"
+    assert find_record([records], f"box_room/{ep.episode_id}").episode_id == ep.episode_id
+
+    rrd = tmp_path / "replay.rrd"
+    view(ViewConfig(serve=False, save=str(rrd)),
+         ReplaySource(records=(str(records),), key=key, scenes_root=str(FIXTURES), episodes=str(eps_path)), echo=lambda s: None)
+    steps, translations = _column(rrd, "/world/robot", "translation")
+    assert list(steps) == list(range(record.steps + 1))
+    xy = np.array([t[0][:2] for t in translations])
+    np.testing.assert_allclose(xy, record.trajectory().poses[:, :2], atol=1e-5)  # the record's poses, as logged
+    np.testing.assert_allclose(xy, live_poses[:, :2], atol=0.006)  # = the run's poses to the record's 5 mm
+
+
+def test_export_opens_with_reader_and_holds_every_view(tmp_path, episode_file):
+    from rerun.chunk import RrdReader
+
+    eps_path, _ = episode_file
+    rrd = tmp_path / "live.rrd"
+    run = _nue("view", "--scene", BOX_ROOM, "--episodes", eps_path, "--max-steps", 6, "--no-serve", "--save", rrd)
+    assert run.returncode == 0, run.stderr
+    assert f"recording: {rrd}" in run.stdout
+    entities = {c.entity_path for c in RrdReader(rrd).stream()}
+    for e in ("world/house", "world/goal/position", "world/robot", "world/camera/rgb", "world/trajectory", "world/seen",
+              "world/uncertainty", "frames/depth", "goal/photo", "memory/i_u", "memory/i_cog", "memory/rgb",
+              "metrics/seen_m2"):
+        assert "/" + e in entities, e
+    steps, _ = _column(rrd, "/world/robot", "translation")
+    assert steps[0] == 0 and len(steps) >= 2
+    steps_u, _ = _column(rrd, "/world/uncertainty", "positions")
+    assert len(steps_u) == len(steps) - 1  # maps at every step the policy acted, none after the last
+
+
+def test_taken_port_is_a_one_line_error(episode_file):
+    eps_path, _ = episode_file
+    with socket.socket() as s:
+        s.bind(("0.0.0.0", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        run = _nue("view", "--scene", BOX_ROOM, "--episodes", eps_path, "--port", port, "--grpc-port", _free_port(),
+                   timeout=60)
+    assert run.returncode == 2
+    assert run.stderr.strip() == f"error: --port: port {port} is taken (another program listens there); choose another"
+
+
+@pytest.mark.skipif(find_chromium() is None, reason="needs chromium (apt-get install chromium)")
+@pytest.mark.timeout(600)
+def test_headless_browser_sees_the_scene(tmp_path, episode_file):
+    eps_path, _ = episode_file
+    shot = tmp_path / "view.png"
+    run = _nue("view", "--scene", BOX_ROOM, "--episodes", eps_path, "--max-steps", 15, "--port", _free_port(),
+               "--grpc-port", _free_port(), "--screenshot", shot, "--screenshot-timeout", 400, timeout=580)
+    assert run.returncode == 0, run.stderr
+    assert "page ready after" in run.stdout
+    pixels = png_pixels(shot.read_bytes())
+    assert shows_content(pixels)
+    near = np.abs(pixels.astype(int) - np.array(TRAJECTORY_COLOUR)).sum(axis=-1) < 60
+    assert near.sum() > 30, "trajectory colour not on the page"
