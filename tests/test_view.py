@@ -36,6 +36,22 @@ def episode_file(tmp_path_factory, box_scene, box_nav, box_renderer):
     return path, eps[0]
 
 
+def _checkpoint(path):
+    """An untrained NUE policy checkpoint for the paper preset (as tests/test_eval.py makes one)."""
+    import torch
+
+    from nue.nerf.config import get_memory
+    from nue.policy import build_model
+    from nue.policy.config import get_model_config
+    from nue.train.checkpoint import policy_meta, save_checkpoint
+
+    task = get_task("paper")
+    cfg = get_model_config("nue").for_task(task)
+    torch.manual_seed(0)
+    meta = policy_meta(task, get_memory("fast"), cfg, {})
+    return save_checkpoint(path, {**meta, "model_state": build_model(cfg).state_dict(), "step": 0})
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("", 0))
@@ -86,14 +102,16 @@ def test_replay_reproduces_recorded_poses(tmp_path, box_scene, box_nav, box_rend
     np.testing.assert_allclose(xy, live_poses[:, :2], atol=0.006)  # = the run's poses to the record's 5 mm
 
 
-def test_export_opens_with_reader_and_holds_every_view(tmp_path, episode_file):
+def test_export_of_a_policy_run_opens_with_reader_and_holds_every_view(tmp_path, episode_file):
     from rerun.chunk import RrdReader
 
     eps_path, _ = episode_file
     rrd = tmp_path / "live.rrd"
-    run = _nue("view", "--scene", BOX_ROOM, "--episodes", eps_path, "--max-steps", 6, "--no-serve", "--save", rrd)
+    ckpt = _checkpoint(tmp_path / "nue.pt")
+    run = _nue("view", "--scene", BOX_ROOM, "--episodes", eps_path, "--max-steps", 6, "--checkpoint", ckpt,
+               "--no-serve", "--save", rrd)
     assert run.returncode == 0, run.stderr
-    assert f"recording: {rrd}" in run.stdout
+    assert "nue: " in run.stdout and f"recording: {rrd}" in run.stdout
     entities = {c.entity_path for c in RrdReader(rrd).stream()}
     for e in ("world/house", "world/goal/position", "world/robot", "world/camera/rgb", "world/trajectory", "world/seen",
               "world/uncertainty", "frames/depth", "goal/photo", "memory/i_u", "memory/i_cog", "memory/rgb",

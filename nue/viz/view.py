@@ -176,30 +176,26 @@ def _memory_from(checkpoint: str | None, camera):
 
 
 def run_live(viewer: Viewer, src: LiveSource) -> EpisodeRecord:
-    """Run ``src``'s episode through :func:`nue.rollout.run_episode`, logging every step; returns its record."""
+    """Run ``src``'s episode through :func:`nue.rollout.run_episode`, logging every step; returns its record.
+    The env and agent come from the shared setup path (:func:`nue.sim.env.make_env`,
+    :func:`nue.train.checkpoint.load_agent`); the expert gets the ``fast`` memory alongside, for the maps."""
     from nue.rollout import run_episode
-    from nue.scene.navgrid import NavGrid
     from nue.scene.scene import Scene
-    from nue.sim.env import ImageNavEnv
+    from nue.sim.env import make_env
     from nue.sim.episodes import load_episodes
 
-    task = _task(src.task, src.max_steps)
     scene = Scene.load(src.scene)
-    nav = NavGrid.from_scene(scene)
-    episode = pick_episode(load_episodes(src.episodes, scene, task, navgrid=nav), src.episode, src.episodes)
-    env = ImageNavEnv(scene, task, [episode], navgrid=nav)
+    env = make_env(scene, src.task, max_steps=src.max_steps)
+    episode = pick_episode(load_episodes(src.episodes, scene, env.task, navgrid=env.navgrid), src.episode, src.episodes)
     if src.checkpoint is None:
         from nue.policy.agent import ExpertAgent
 
-        agent, memory, method = ExpertAgent(), _memory_from(None, task.camera), "expert"
+        agent, memory, method = ExpertAgent(), _memory_from(None, env.task.camera), "expert"
     else:
-        from nue.policy.agent import PolicyAgent
-        from nue.train.checkpoint import check_compatible, load_policy
+        from nue.train.checkpoint import load_agent, load_checkpoint
 
-        model, ckpt = load_policy(src.checkpoint)
-        check_compatible(ckpt, src.checkpoint, task=_task(src.task), scenes={scene.name: scene.content_hash})
-        agent, method = PolicyAgent(model, greedy=task.greedy), ckpt["model_config"]["name"]
-        memory = _memory_from(src.checkpoint, task.camera) if model.config.uses_memory_maps else None
+        agent, memory = load_agent(src.checkpoint, env.task, scenes={scene.name: scene.content_hash})
+        method = load_checkpoint(src.checkpoint)["model_config"]["name"]
     log: list[EpisodeLogger] = []
 
     def on_step(s) -> None:
