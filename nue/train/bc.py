@@ -21,10 +21,19 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
+from tqdm import tqdm
 
 from nue.errors import CheckpointError, ConfigError, DataError
+from nue.jobs import fail_point
+from nue.nerf.config import MemoryConfig
+from nue.policy import build_model
+from nue.policy.base import PolicyOutput, angle_l1_loss, wrap_angle_t
+from nue.policy.config import get_model_config
+from nue.sim.task import get_task
 from nue.train.checkpoint import load_checkpoint, policy_meta, save_checkpoint
+from nue.train.collect import manifest_hash
 from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler, data_roots, swap_maps
+from nue.train.select import SelectConfig, select_checkpoint
 
 
 @dataclass(frozen=True)
@@ -123,8 +132,6 @@ def resolve_precision(precision: str, device: torch.device) -> str:
 def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainConfig, device: torch.device):
     """One training forward: (total, cross-entropy, angle L1 or None). Under ``bf16`` the network runs in
     bfloat16 autocast and the loss is taken on its outputs cast back to float32."""
-    from nue.policy.base import PolicyOutput
-
     with torch.autocast(device.type, dtype=torch.bfloat16, enabled=resolve_precision(cfg.precision, device) == "bf16"):
         out = net(batch.inp, model.initial_state(reset_t.shape[1], device), reset_t)
     out = PolicyOutput(out.logits.float(), None if out.aux_angle is None else out.aux_angle.float(), out.state)
@@ -163,8 +170,6 @@ def class_weights(counts: np.ndarray, power: float) -> torch.Tensor:
 
 def bc_loss(out, batch, weights: torch.Tensor, aux_weight: float):
     """(total, cross-entropy, angle L1 or None) of a forward_sequence output against a batch."""
-    from nue.policy.base import angle_l1_loss
-
     logits = out.logits.reshape(-1, out.logits.shape[-1])
     ce = F.cross_entropy(logits, batch.action.reshape(-1), weight=weights.to(logits.device))
     if out.aux_angle is None:
@@ -176,8 +181,6 @@ def bc_loss(out, batch, weights: torch.Tensor, aux_weight: float):
 @torch.no_grad()
 def evaluate(model, data: DemoSet, model_cfg, device, max_episodes: int = 200) -> dict[str, float]:
     """Held-out action accuracy, balanced accuracy and goal-angle error (degrees), episode by episode."""
-    from nue.policy.base import wrap_angle_t
-
     model.eval()
     correct = total = 0
     per_class = np.zeros((2, model_cfg.num_actions))
@@ -222,14 +225,6 @@ FAIL_AT_ENV = "NUE_FAIL_AT_STEP"
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> TrainResult:
     """Run (or resume from ``out/last.pt``) behaviour cloning."""
-    from tqdm import tqdm
-
-    from nue.nerf.config import MemoryConfig
-    from nue.policy import build_model
-    from nue.policy.config import get_model_config
-    from nue.sim.task import get_task
-    from nue.train.collect import manifest_hash
-
     rank, world = _dist()
     device = torch.device(cfg.device)
     out_dir = Path(cfg.out)
@@ -264,7 +259,6 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     rng = np.random.default_rng([cfg.seed, rank])
     step, best = 0, -1.0
     elapsed = 0.0
-    fail_at = int(os.environ.get(FAIL_AT_ENV, "0") or 0)
     per_rank = cfg.batch_size // world
     if model_cfg.recurrent:
         sampler = SequenceSampler(data, per_rank, cfg.seq_len, rng, rank=0, world=1)
@@ -363,10 +357,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
                 checkpoint("best.pt" if cfg.select == "accuracy" else "best_accuracy.pt", full=False, metrics=metrics)
             checkpoint("last.pt", full=True, metrics=metrics)
             bar.set_postfix(loss=f"{loss.item():.3f}", **{k: f"{v:.3f}" for k, v in metrics.items()})
-            if fail_at and step >= fail_at:
-                from nue.jobs import InjectedFailure
-
-                raise InjectedFailure(f"{FAIL_AT_ENV}={fail_at}: stopping after the checkpoint at step {step}")
+            fail_point(FAIL_AT_ENV, step, f"the checkpoint at step {step}")
         if out_of_time:
             break
     bar.close()
@@ -375,8 +366,6 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     if world > 1:
         torch.distributed.barrier()
     if cfg.select == "closed_loop" and rank == 0:
-        from nue.train.select import SelectConfig, select_checkpoint
-
         select_checkpoint(out_dir, SelectConfig(episodes_dir=cfg.select_episodes, candidates=cfg.select_candidates,
                                                 workers=cfg.select_workers, device=cfg.device), progress=progress)
     if world > 1:

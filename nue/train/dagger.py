@@ -19,6 +19,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from nue.errors import DataError
 from nue.train.bc import TrainConfig, TrainResult, train
 from nue.train.collect import CollectConfig, collect
 
@@ -88,8 +89,6 @@ def collect_config_from_manifest(manifest: dict, scene_dirs=(), device: str = "c
     if not scene_dirs:
         prefix = f"{manifest['split']}_"
         if not all(n.startswith(prefix) and n[len(prefix):].isdigit() for n in names):
-            from nue.errors import DataError
-
             raise DataError("manifest.json", "scenes are not generated houses: pass their folders with --scene")
         houses = tuple(int(n[len(prefix):]) for n in names)
     return CollectConfig(task=manifest["task"], memory=manifest["memory"], split=manifest["split"],

@@ -18,6 +18,7 @@ import torch
 
 from nue.errors import DataError
 from nue.policy.inputs import PolicyInput
+from nue.train.collect import data_layout
 from nue.train.episode_file import read_episode_file
 
 MAP_KEYS = ("i_u", "i_cog")
@@ -98,8 +99,6 @@ class DemoSet:
 
     def check_layout(self, model_cfg) -> None:
         """Refuse a model whose input sizes differ from the stored ones."""
-        from nue.train.collect import data_layout
-
         want, have = data_layout(model_cfg), self.manifest["model_layout"]
         if want != have:
             raise DataError(self.root / "manifest.json", f"data layout {have} does not fit model {model_cfg.name!r} ({want})")
