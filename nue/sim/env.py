@@ -28,6 +28,7 @@ from gymnasium import spaces
 from nue.scene.navgrid import NavGrid
 from nue.scene.scene import Scene
 from nue.sim.camera import wrap_angle
+from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import Episode, validate_episode
 from nue.sim.record import TRAJECTORY_KEY, EpisodeRecord, Trajectory
 from nue.sim.renderer import Renderer
@@ -259,8 +260,6 @@ class ImageNavEnv(gym.Env):
         return pos, collided
 
     def _random_episode(self) -> Episode:
-        from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
-
         bins = self.task.bins.names
         b = bins[int(self.np_random.integers(len(bins)))]
         seed = int(self.np_random.integers(2**31))

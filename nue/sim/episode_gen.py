@@ -19,6 +19,7 @@ from nue.errors import EpisodeGenerationError
 from nue.scene.navgrid import NavGrid
 from nue.scene.scene import Scene
 from nue.sim.episodes import Episode
+from nue.sim.renderer import Renderer
 from nue.sim.task import TaskConfig, get_task
 
 
@@ -52,8 +53,6 @@ def generate_episodes(
     bins: tuple[str, ...] | None = None,
 ) -> list[Episode]:
     """Sample ``config.per_bin`` episodes for each difficulty bin of ``task`` in ``scene``."""
-    from nue.sim.renderer import Renderer
-
     task = get_task(task)
     nav = navgrid or NavGrid.from_scene(scene, floor)
     renderer = renderer or Renderer(scene, task.camera)
