@@ -26,7 +26,7 @@ import rerun as rr
 
 from nue.errors import ConfigError, DataError, EpisodeError
 from nue.sim.record import EpisodeRecord
-from nue.viz.view_scene import EpisodeLogger, SceneViewConfig, blueprint
+from nue.viz.view_scene import GOAL_COLOUR, TRAJECTORY_COLOUR, EpisodeLogger, SceneViewConfig, blueprint
 
 
 @dataclass(frozen=True)
@@ -136,11 +136,14 @@ class Viewer:
         log.begin(env.scene, env.goal_xy, env.goal_image, env.task.success_radius)
         return log
 
-    def close(self) -> None:
-        """Flush everything to the sinks (the ``.rrd`` file is complete after this)."""
+    def flush(self) -> None:
+        """Send everything logged so far to the sinks."""
         self.rec.flush()
-        if self.cfg.save:
-            self.rec.disconnect()
+
+    def close(self) -> None:
+        """Close the sinks: the ``.rrd`` file gets its footer, the gRPC server stops (the page loses its data)."""
+        self.rec.flush()
+        self.rec.disconnect()
 
 
 # ------------------------------------------------------------------------------------------ sources
@@ -276,7 +279,7 @@ def view(cfg: ViewConfig, source: LiveSource | ReplaySource, screenshot: str | N
     """Serve / save one episode; with ``screenshot``, write a PNG of the page after the episode (waiting at
     most ``screenshot_timeout`` s for the page) and return (after ``serve_seconds`` more, if given); else
     keep serving for ``serve_seconds`` (0 = until Ctrl-C)."""
-    from nue.viz.view_shot import find_chromium, screenshot_page
+    from nue.viz.view_shot import find_chromium, has_colour, screenshot_page
 
     if screenshot and not cfg.serve:
         raise ConfigError("--screenshot", "needs the page: drop --no-serve")
@@ -292,24 +295,25 @@ def view(cfg: ViewConfig, source: LiveSource | ReplaySource, screenshot: str | N
     else:
         rec = run_live(viewer, source)
         echo(f"{rec.method}: {'success' if rec.success else 'failure'} in {rec.steps} steps, path {rec.path_length:.2f} m")
-    viewer.close()
-    if cfg.save:
-        echo(f"recording: {cfg.save} (open later with: rerun {cfg.save})")
-    if screenshot:
-        try:
-            seconds = screenshot_page(viewer.url, screenshot, timeout=screenshot_timeout)
-        except TimeoutError as exc:
-            raise ConfigError("--screenshot", str(exc)) from None
-        echo(f"screenshot: {screenshot} (page ready after {seconds:.1f} s)")
-        if serve_seconds <= 0:
-            return
-    if cfg.serve:
-        try:
+    viewer.flush()
+    try:
+        if screenshot:
+            try:  # the page is drawn once it shows the goal marker or the trajectory (not rerun's welcome page)
+                seconds = screenshot_page(viewer.url, screenshot, timeout=screenshot_timeout, ready=lambda px: (
+                    has_colour(px, TRAJECTORY_COLOUR) or has_colour(px, GOAL_COLOUR)))
+            except TimeoutError as exc:
+                raise ConfigError("--screenshot", str(exc)) from None
+            echo(f"screenshot: {screenshot} (page ready after {seconds:.1f} s)")
+        if cfg.serve and (serve_seconds > 0 or not screenshot):
             if serve_seconds > 0:
                 time.sleep(serve_seconds)
             else:
                 echo("serving; Ctrl-C to stop")
                 while True:
                     time.sleep(3600)
-        except KeyboardInterrupt:
-            pass
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.close()
+        if cfg.save:
+            echo(f"recording: {cfg.save} (open later with: rerun {cfg.save})")

@@ -39,6 +39,12 @@ def png_pixels(png: bytes) -> np.ndarray:
     return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
 
 
+def has_colour(pixels: np.ndarray, rgb, tolerance: int = 60, min_pixels: int = 30) -> bool:
+    """True if at least ``min_pixels`` pixels lie within ``tolerance`` (sum of |channel differences|) of ``rgb``."""
+    near = np.abs(pixels.astype(np.int64) - np.asarray(rgb, dtype=np.int64)).sum(axis=-1) < tolerance
+    return int(near.sum()) >= min_pixels
+
+
 def shows_content(pixels: np.ndarray, max_background: float = 0.9) -> bool:
     """True unless one colour covers more than ``max_background`` of the page (blank or a loading screen)."""
     flat = pixels.reshape(-1, 3).astype(np.int64)
@@ -111,8 +117,8 @@ class DevTools:
 
 def screenshot_page(url: str, out, ready: Callable[[np.ndarray], bool] | None = None, timeout: float = 120.0,
                     interval: float = 1.0, width: int = 1600, height: int = 1000) -> float:
-    """Load ``url`` in headless Chromium and write a PNG to ``out`` once ``ready(pixels)`` holds (default: the
-    page shows content and did not change over the last two captures). Returns the seconds from navigation
+    """Load ``url`` in headless Chromium and write a PNG to ``out`` once the page shows content, did not change
+    over the last two captures and ``ready(pixels)`` holds (if given). Returns the seconds from navigation
     to the ready page; TimeoutError (the last capture still written) if it is not ready within ``timeout``."""
     browser = DevTools(width, height)
     try:
@@ -128,11 +134,8 @@ def screenshot_page(url: str, out, ready: Callable[[np.ndarray], bool] | None = 
                 time.sleep(interval)
                 continue
             pixels = png_pixels(png)
-            if ready is not None:
-                ok = ready(pixels)
-            else:
-                same = same + 1 if previous is not None and np.array_equal(pixels, previous) else 0
-                ok = shows_content(pixels) and same >= 2
+            same = same + 1 if previous is not None and np.array_equal(pixels, previous) else 0
+            ok = shows_content(pixels) and same >= 2 and (ready is None or ready(pixels))
             elapsed = time.perf_counter() - t0
             if ok or elapsed > timeout:
                 with open(out, "wb") as f:
