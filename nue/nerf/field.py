@@ -91,6 +91,11 @@ class NeRFField(nn.Module):
         dir_part = self.colour_dir(self.dir_enc(d))
         return colour_head(self.colour_feature(out[:, 2:]), dir_part, x, d, self.colour_out, density, variance)
 
+    def optimizers(self, lr: float, grid_lr: float) -> list[torch.optim.Optimizer]:
+        """Fresh optimisers of an episode: one Adam (``lr``) over every parameter (``grid_lr`` is the voxel
+        grid's, unused here)."""
+        return [torch.optim.Adam(self.parameters(), lr=lr)]
+
     def flops_per_point(self, samples_per_ray: int = 1) -> float:
         """GEMM FLOPs (2 per multiply-add) of one point query; the direction branch is shared by the
         ``samples_per_ray`` points of a ray. Encodings and activations (~2%) are not counted."""

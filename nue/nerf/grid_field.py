@@ -109,6 +109,11 @@ class GridField(nn.Module):
         """Parameters with dense gradients (the colour MLP)."""
         return [p for n, p in self.named_parameters() if n != "table"]
 
+    def optimizers(self, lr: float, grid_lr: float) -> list:
+        """Fresh optimisers of an episode: Adam (``lr``) on the colour MLP, :class:`RowAdam` (``grid_lr``) on the
+        table's touched rows (its gradients are sparse)."""
+        return [torch.optim.Adam(self.dense_parameters(), lr=lr), RowAdam(self.table, lr=grid_lr)]
+
     def corners(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Table rows and trilinear weights of the 8 voxel corners around normalised positions
         ``x (P, 3)``: ``(rows (P, 8) int64, weights (P, 8))``; points outside the grid read the last row

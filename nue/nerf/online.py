@@ -28,7 +28,7 @@ import torch
 from nue.errors import CheckpointError
 from nue.nerf.config import MemoryConfig, get_memory
 from nue.nerf.field import FieldOutputs, NeRFField
-from nue.nerf.grid_field import GridField, RowAdam
+from nue.nerf.grid_field import GridField
 from nue.nerf.loss import memory_loss
 from nue.nerf.rays import (
     EpisodeFrame,
@@ -129,13 +129,7 @@ class OnlineNeRF:
         """Start an episode: the initial weights, a fresh optimiser, an empty replay; ``seed`` drives ray
         sampling only. The episode frame is fixed at ``start_pose`` or else at the first pose seen."""
         self._load_initial_weights()
-        if isinstance(self.field, GridField):
-            self.optimizers = [
-                torch.optim.Adam(self.field.dense_parameters(), lr=self.config.lr),
-                RowAdam(self.field.table, lr=self.config.grid_lr),
-            ]
-        else:
-            self.optimizers = [torch.optim.Adam(self.field.parameters(), lr=self.config.lr)]
+        self.optimizers = self.field.optimizers(self.config.lr, self.config.grid_lr)
         self.generator = torch.Generator(device="cpu")
         self.generator.manual_seed(int(seed))
         self.frame: EpisodeFrame | None = None
