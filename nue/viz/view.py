@@ -298,9 +298,12 @@ def view(cfg: ViewConfig, source: LiveSource | ReplaySource, screenshot: str | N
     viewer.flush()
     try:
         if screenshot:
-            try:  # the page is drawn once it shows the goal marker or the trajectory (not rerun's welcome page)
-                seconds = screenshot_page(viewer.url, screenshot, timeout=screenshot_timeout, ready=lambda px: (
-                    has_colour(px, TRAJECTORY_COLOUR) or has_colour(px, GOAL_COLOUR)))
+            def drawn(px) -> bool:  # the goal marker or the trajectory below the header bar (whose warnings are orange)
+                body = px[px.shape[0] // 20:]
+                return has_colour(body, TRAJECTORY_COLOUR) or has_colour(body, GOAL_COLOUR)
+
+            try:
+                seconds = screenshot_page(viewer.url, screenshot, timeout=screenshot_timeout, ready=drawn)
             except TimeoutError as exc:
                 raise ConfigError("--screenshot", str(exc)) from None
             echo(f"screenshot: {screenshot} (page ready after {seconds:.1f} s)")
