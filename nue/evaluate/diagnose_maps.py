@@ -19,9 +19,16 @@ import copy
 from dataclasses import dataclass
 
 import numpy as np
+from sklearn.linear_model import LogisticRegression
+from sklearn.metrics import balanced_accuracy_score
+from sklearn.model_selection import LeaveOneGroupOut
+from sklearn.pipeline import make_pipeline
+from sklearn.preprocessing import StandardScaler
 
 from nue.errors import DataError
 from nue.evaluate.diagnose import fmt
+from nue.train.bc import evaluate
+from nue.train.checkpoint import load_policy
 
 MAP_KEYS = ("i_u", "i_cog")
 
@@ -104,9 +111,6 @@ CONDITIONS = ("intact", "mirrored", "other_step")
 def map_controls(checkpoint, data, seed: int = 0, min_gap: int = 10, max_episodes: int = 200,
                  device: str = "cpu") -> MapControls:
     """Load ``checkpoint`` and evaluate it on ``data`` (a ``DemoSet``, held-out part) under :data:`CONDITIONS`."""
-    from nue.train.bc import evaluate
-    from nue.train.checkpoint import load_policy
-
     model, _ = load_policy(checkpoint, device)
     cfg = model.config
     n_eps = min(data.n_episodes, max_episodes)
@@ -174,12 +178,6 @@ class ProbeScores:
 
 def fit_probe(x: np.ndarray, y: np.ndarray, groups: np.ndarray) -> ProbeScores:
     """Standardised multinomial logistic regression (class-balanced weights), leave-one-group-out."""
-    from sklearn.linear_model import LogisticRegression
-    from sklearn.metrics import balanced_accuracy_score
-    from sklearn.model_selection import LeaveOneGroupOut
-    from sklearn.pipeline import make_pipeline
-    from sklearn.preprocessing import StandardScaler
-
     if len(np.unique(groups)) < 2:
         raise ProbeUnavailable(None, f"the probe needs episodes from at least 2 houses (leave-one-house-out), "
                                      f"found {len(np.unique(groups))}")

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
+from scipy.stats import kendalltau
 
 from nue.evaluate import coverage as cov
 from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, read_records, record_diagnostics
@@ -282,8 +283,6 @@ def _ordering_markdown(rows: Sequence[TableRow], paper: Mapping) -> str:
     lines = ["| rank | ours (total SR %) | paper (total SR %) |", "|---|---|---|"]
     lines += [f"| {i + 1} | {a.label} ({100 * a.cells['total'].sr:.1f}) | {b.label} ({paper[b.method]['total'][0]:.2f}) |"
               for i, (a, b) in enumerate(zip(ours, theirs))]
-    from scipy.stats import kendalltau
-
     tau = kendalltau([r.cells["total"].sr for r in shared], [paper[r.method]["total"][0] for r in shared]).statistic
     return "\n".join(lines) + f"\n\nKendall's tau between the two orderings: {_f(float(tau), '.2f')}.\n"
 

@@ -14,10 +14,16 @@ from typing import Sequence
 import matplotlib
 
 matplotlib.use("Agg")
+import imageio.v3 as iio  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from captum.attr import LayerAttribution, LayerGradCam  # noqa: E402
 from matplotlib.colors import LinearSegmentedColormap  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
+from PIL import Image  # noqa: E402
+
+from nue.policy.inputs import PolicyInput  # noqa: E402
 
 from nue.viz.plot import save_figure  # noqa: E402,F401  (re-exported: figures are saved through it)
 from nue.viz.topdown import draw_map, draw_trajectory  # noqa: E402
@@ -150,11 +156,6 @@ def gradcam_uncertainty(model, policy_input, action: int | None = None, layer=No
     (default: the last residual block ``model.f_u.encoder[-1]``): ReLU(sum_k mean_ij(dy/dA_k) A_k),
     upsampled bilinearly with ``LayerAttribution.interpolate``. Runs the model in eval mode.
     """
-    import torch
-    from captum.attr import LayerAttribution, LayerGradCam
-
-    from nue.policy.inputs import PolicyInput
-
     if getattr(model, "f_u", None) is None:
         raise ValueError("the model has no uncertainty branch f_u (an ablation without it?)")
     inp = policy_input.index(slice(0, 1))
@@ -279,9 +280,6 @@ def save_episode_gif(path, trace: EpisodeTrace, scene=None, floor: int = 0, max_
     Frames are first reduced to 256 colours with Pillow's fast octree quantiser: the GIF writer's
     default median cut costs ~100 ms per frame on one core, the octree ~3 ms.
     """
-    import imageio.v3 as iio
-    from PIL import Image
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     frames = np.stack([np.asarray(Image.fromarray(f).quantize(256, method=Image.Quantize.FASTOCTREE).convert("RGB"))
