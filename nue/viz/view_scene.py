@@ -18,6 +18,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from nue.scene.navgrid import ROBOT_RADIUS
 from nue.sim.camera import pixel_directions, world_from_camera
 from nue.sim.renderer import mesh_draw_batches
 from nue.sim.seen import seen_floor_cells
@@ -28,7 +29,6 @@ TRAJECTORY_COLOUR = (255, 0, 200)
 GOAL_COLOUR = (255, 170, 0)
 SEEN_COLOUR = (60, 200, 90)
 ROBOT_COLOUR = (40, 120, 255)
-ROBOT_RADIUS = 0.18
 
 
 @dataclass(frozen=True)
