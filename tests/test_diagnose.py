@@ -45,7 +45,20 @@ EP2 = ([L, R, F], [0, 0, 1])  # the turn at t = 0 has no predecessor; t = 1 reve
 def test_single_trajectory_by_hand():
     c = D.trajectory_counts(Trajectory(np.array(EP1[0]), np.array(EP1[1], bool), np.zeros((11, 3))))
     assert (c.steps, c.collisions, c.after_blocked, c.forward_after_blocked, c.turns, c.reversals) == (10, 3, 3, 1, 5, 2)
+    assert (c.after_stuck, c.forward_after_stuck) == (3, 1)  # the poses never move: every blocked move is stuck
     assert c.action_counts == (5, 2, 3)
+
+
+def test_stuck_is_a_blocked_move_that_barely_advanced():
+    # forward step 0.25 m: step 1 slides 0.20 m (blocked, not stuck), step 2 advances 0.10 m (stuck, < 0.125),
+    # step 7 does not move (stuck); the steps after them choose F, L, R
+    moved = np.zeros(10)
+    moved[[0, 1, 2, 5, 6]] = [0.25, 0.20, 0.10, 0.25, 0.25]
+    poses = np.zeros((11, 3))
+    poses[1:, 0] = np.cumsum(moved)
+    c = D.trajectory_counts(Trajectory(np.array(EP1[0]), np.array(EP1[1], bool), poses))
+    assert (c.after_blocked, c.forward_after_blocked) == (3, 1)
+    assert (c.after_stuck, c.forward_after_stuck) == (2, 0)
 
 
 def test_record_diagnostics_by_hand():
@@ -63,8 +76,8 @@ def test_record_diagnostics_by_hand():
     assert fr.without_trajectory == 1 and fr.collisions_per_step == pytest.approx(0.1)
     assert np.isnan(fr.p_forward_after_blocked) and np.isnan(fr.turn_reversal_rate)
     md = D.format_record_diagnostics(d)
-    assert "| FR | 1 | 10 | 1.00 | 0.100 | n/a | n/a | n/a | 1 |" in md
-    assert "| NUE (full) | 3 | 20 | 2.00 | 0.300 | 33.3 | 50.0 | 46.2 / 23.1 / 30.8 | 1 |" in md
+    assert "| FR | 1 | 10 | 1.00 | 0.100 | n/a | n/a | n/a | n/a | 1 |" in md
+    assert "| NUE (full) | 3 | 20 | 2.00 | 0.300 | 33.3 | 33.3 (3) | 50.0 | 46.2 / 23.1 / 30.8 | 1 |" in md
     assert list(D.record_diagnostics(recs, methods=["NUE (full)"])) == ["nue"]
     js = D.to_jsonable(d)
     assert js["fr"]["p_forward_after_blocked"] is None and json.dumps(js, allow_nan=False)
@@ -81,8 +94,8 @@ def test_report_section_shows_na_without_trajectories(tmp_path):
     from nue.evaluate.report import closed_loop_markdown, render_results_md
 
     text = render_results_md([rec([], [], trajectory=False, steps=4, collisions=1)], {"command": "x"})
-    assert "## Closed-loop diagnostics" in text and "| NUE (full) | 1 | 4 | 1.00 | 0.250 | n/a | n/a | n/a | 1 |" in text
-    assert "| 33.3 | 40.0 |" in closed_loop_markdown([rec(*EP1)])
+    assert "## Closed-loop diagnostics" in text and "| NUE (full) | 1 | 4 | 1.00 | 0.250 | n/a | n/a | n/a | n/a | 1 |" in text
+    assert "| 33.3 | 33.3 (3) | 40.0 |" in closed_loop_markdown([rec(*EP1)])
 
 
 # --- map controls -------------------------------------------------------------------------------
@@ -224,7 +237,7 @@ def test_cli_diagnose_records(tmp_path):
     path.write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs))
     res = nue("diagnose", "--records", path, "--method", "nue", "--out", out)
     assert res.returncode == 0, res.stderr
-    assert "| NUE (full) | 2 | 13 | 2.00 | 0.308 | 33.3 | 50.0 |" in res.stdout and "| FR |" not in res.stdout
+    assert "| NUE (full) | 2 | 13 | 2.00 | 0.308 | 33.3 | 33.3 (3) | 50.0 |" in res.stdout and "| FR |" not in res.stdout
     assert json.loads(out.read_text())["records"]["nue"]["turns"] == 6
     bad = tmp_path / "bad.jsonl"
     bad.write_text(path.read_text() + "{not json\n")

@@ -6,7 +6,6 @@ import csv
 import io
 import json
 import math
-import time
 
 import numpy as np
 import pytest
@@ -126,11 +125,9 @@ def test_paired_difference_better_everywhere_is_resolved():
     assert "| f_u=off AT=off CBAM=off | 20 | +100.0 [+100.0, +100.0] | resolved" in md
 
 
-def test_paired_bootstrap_matches_normal_approximation_and_is_fast():
+def test_paired_bootstrap_matches_normal_approximation():
     d = np.tile([0.0, 1.0], 250)  # 500 pairs, mean .5, sd .5
-    t0 = time.perf_counter()
     mean, lo, hi = R.paired_bootstrap(d, n_boot=10_000, seed=0)
-    assert time.perf_counter() - t0 < 2.0
     half = Z * 0.5 / math.sqrt(500)
     assert mean[0] == 0.5 and lo[0] == pytest.approx(0.5 - half, abs=0.01) and hi[0] == pytest.approx(0.5 + half, abs=0.01)
     again = R.paired_bootstrap(d, n_boot=10_000, seed=0)
