@@ -14,9 +14,14 @@ from typing import Optional
 import typer
 
 from nue import cli_args as A
-from nue.cli_learn import collect_cmd, select_cmd, train_cmd
+from nue.cli_learn import collect_cmd, dagger_cmd, select_cmd, train_cmd
 from nue.errors import NueError
 from nue.outputs import check_output_dir, check_output_file
+
+try:  # typer >= 0.26 ships its own copy of click, whose usage errors these are
+    from typer._click import exceptions as click_errors
+except ImportError:  # pragma: no cover - an older typer runs on click itself
+    from click import exceptions as click_errors
 
 app = typer.Typer(add_completion=False, pretty_exceptions_enable=False, no_args_is_help=True,
                   help="Image-goal navigation with an uncertainty-aware NeRF memory.")
@@ -156,6 +161,7 @@ def expert(
 
 app.command("collect")(collect_cmd)
 app.command("train")(train_cmd)
+app.command("dagger")(dagger_cmd)
 app.command("select")(select_cmd)
 
 
@@ -353,17 +359,60 @@ def view_cmd(
          screenshot_timeout=screenshot_timeout, echo=typer.echo)
 
 
-def main() -> None:
+def usage_problem(exc: click_errors.UsageError, command=None, args: list[str] = ()) -> str:
+    """One line for a usage error of click / typer (unknown option or command, a missing argument, a
+    value that is not a number, ...): ``<command>: <problem> (see '<command> --help')``.
+
+    The command is the error's context, or (for the errors raised without one, such as an option
+    missing its value) the leading words of ``args`` that name subcommands of the click ``command``."""
+    if exc.ctx is not None:
+        path = exc.ctx.command_path
+    else:
+        words = ["nue"]
+        for word in args:
+            command = getattr(command, "commands", {}).get(word)
+            if command is None:
+                break
+            words.append(word)
+        path = " ".join(words)
+    problem = " ".join(exc.format_message().split())
+    return f"{path}: {problem} (see '{path} --help')"
+
+
+def main(argv: list[str] | None = None) -> None:
+    """The ``nue`` console entry point: runs the command line ``argv`` (default ``sys.argv[1:]``).
+
+    Every failure the user can fix is one line on stderr and exit status 2: a usage error found by
+    click (unknown option, missing argument, bad number; its boxed usage text is not shown) as
+    ``error: <command>: <problem>``, bad input as ``error: <file or option>: <problem>``. ``--help``
+    and a bare group (which prints its help) behave as click's. An injected test failure exits 3.
+    """
     from nue.jobs import InjectedFailure
 
+    args = sys.argv[1:] if argv is None else list(argv)
+    command = typer.main.get_command(app)
     try:
-        app()
+        code = command.main(args=args, prog_name="nue", standalone_mode=False)
+    except click_errors.UsageError as exc:
+        if type(exc).__name__ == "NoArgsIsHelpError":  # ``nue`` or ``nue scenes`` alone: its help (as typer does)
+            if exc.format_message().strip():
+                exc.show()
+        else:
+            typer.echo(f"error: {usage_problem(exc, command, args)}", err=True)
+        sys.exit(2)
+    except click_errors.ClickException as exc:
+        typer.echo(f"error: {' '.join(exc.format_message().split())}", err=True)
+        sys.exit(exc.exit_code)
+    except typer.Abort:
+        typer.echo("Aborted!", err=True)
+        sys.exit(1)
     except NueError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(2)
     except InjectedFailure as exc:
         typer.echo(f"stopped: {exc}", err=True)
         sys.exit(3)
+    sys.exit(code if isinstance(code, int) else 0)  # an int is click's exit code (``--help``: 0, Ctrl-C: 130)
 
 
 if __name__ == "__main__":
