@@ -86,22 +86,45 @@ class Scene:
         return max(below, key=lambda i: self.floor_heights[i]) if below else 0
 
     def load_mesh(self):
-        """The mesh as a ``trimesh.Scene`` (textures included); :class:`SceneError` if unreadable or empty."""
-        import trimesh
+        """The mesh as a ``trimesh.Scene`` (textures included); :class:`SceneError` if unreadable, empty
+        or holding a NaN / inf vertex (see :func:`read_mesh`)."""
+        return read_mesh(self.mesh_path)
 
-        if self.mesh_path.suffix.lower() == ".obj":
-            check_obj_text(self.mesh_path)
-        try:
-            loaded = trimesh.load(str(self.mesh_path), force="scene")
-        except Exception as exc:  # trimesh raises many types for a corrupt file
-            raise SceneError(self.mesh_path, f"cannot read mesh ({type(exc).__name__}: {exc})") from None
-        n_faces = sum(len(g.faces) for g in loaded.geometry.values() if hasattr(g, "faces"))
-        if n_faces == 0:
-            raise SceneError(self.mesh_path, "mesh has no triangles (corrupt or empty file)")
-        for g in loaded.geometry.values():  # OBJ text is checked line by line above; GLB / PLY here
-            if hasattr(g, "vertices") and not np.isfinite(np.asarray(g.vertices)).all():
-                raise SceneError(self.mesh_path, "mesh has vertices that are NaN or inf")
-        return loaded
+
+UNPROCESSED_SUFFIXES = (".glb", ".gltf")
+"""Mesh formats trimesh loads as stored (no vertex merging); the others it cleans up after reading."""
+
+
+def read_mesh(path: str | Path):
+    """A mesh file (OBJ, GLB, PLY, ... anything trimesh reads) as a ``trimesh.Scene``, checked once here
+    for every format: :class:`SceneError` naming the file if it cannot be read, has no triangles, or
+    has a vertex with a NaN or inf coordinate.
+
+    An OBJ's text is checked line by line first (the message names the line). The vertices of every
+    format are checked as read, before trimesh's clean-up, which would otherwise drop the non-finite
+    vertices and their faces without a word (it does so for PLY); the clean-up then runs as
+    ``trimesh.load`` runs it by default, so the loaded mesh is the same as before the check."""
+    import trimesh
+
+    path = Path(path)
+    if path.suffix.lower() == ".obj":
+        check_obj_text(path)
+    try:
+        loaded = trimesh.load(str(path), force="scene", process=False)
+    except Exception as exc:  # trimesh raises many types for a corrupt file
+        raise SceneError(path, f"cannot read mesh ({type(exc).__name__}: {exc})") from None
+    meshes = {name: g for name, g in loaded.geometry.items() if isinstance(g, trimesh.Trimesh)}
+    if sum(len(g.faces) for g in meshes.values()) == 0:
+        raise SceneError(path, "mesh has no triangles (corrupt or empty file)")
+    for name, g in meshes.items():
+        bad = ~np.isfinite(np.asarray(g.vertices)).all(axis=1)
+        if bad.any():
+            raise SceneError(path, f"{int(bad.sum())} of {len(bad)} vertices of geometry {name!r} are NaN or inf "
+                                   f"(the first is vertex {int(np.argmax(bad))})")
+    if path.suffix.lower() not in UNPROCESSED_SUFFIXES:
+        for g in meshes.values():
+            g.process()
+    return loaded
 
 
 OBJ_MIN_VALUES = {b"v": 3, b"vt": 2, b"vn": 3, b"f": 3}

@@ -13,6 +13,7 @@ import numpy as np
 from PIL import Image
 
 from nue.errors import SceneError
+from nue.scene.scene import Scene, read_mesh
 from nue.sim.camera import gl_projection_matrix, gl_view_matrix
 from nue.sim.task import CameraConfig
 
@@ -146,8 +147,6 @@ class Renderer:
         import moderngl
         import trimesh
 
-        from nue.scene.scene import Scene
-
         self.camera = camera
         if isinstance(scene, Scene):
             up_axis = up_axis or scene.up_axis
@@ -155,10 +154,7 @@ class Renderer:
         elif isinstance(scene, (trimesh.Scene, trimesh.Trimesh)):
             mesh = scene if isinstance(scene, trimesh.Scene) else trimesh.Scene(scene)
         else:
-            try:
-                mesh = trimesh.load(str(scene), force="scene")
-            except Exception as exc:
-                raise SceneError(scene, f"cannot read mesh ({type(exc).__name__}: {exc})") from None
+            mesh = read_mesh(scene)
         self.up_axis = up_axis or "z"
         self.ctx = ctx = gl_context()
         self.program = ctx.program(vertex_shader=_VERTEX_SHADER, fragment_shader=_FRAGMENT_SHADER)
