@@ -61,13 +61,16 @@ def text(value: Any, name: str) -> str:
     raise FieldProblem(f"{name}: expected a string, got {_describe(value)}")
 
 
-def quaternion_problem(q: Sequence[float], name: str) -> str | None:
-    """What is wrong with a rotation (x, y, z, w) that must be a unit quaternion about +z, or None."""
+def quaternion_problem(q: Sequence[float], name: str, axis: str = "z") -> str | None:
+    """What is wrong with a rotation (x, y, z, w) that must be a unit quaternion about ``axis`` (+z
+    for ours and the authors'; +y for habitat's, whose up axis is y), or None."""
     norm = math.sqrt(sum(v * v for v in q))
     if abs(norm - 1.0) > QUAT_TOLERANCE:
         return f"{name} is not a unit quaternion (norm {norm:.4g}): {list(q)}"
-    if max(abs(q[0]), abs(q[1])) > QUAT_TOLERANCE:
-        return f"{name} is not a rotation about z (x, y must be 0): {list(q)}"
+    others = [i for i, a in enumerate("xyz") if a != axis]
+    if max(abs(q[i]) for i in others) > QUAT_TOLERANCE:
+        zero = ", ".join("xyz"[i] for i in others)
+        return f"{name} is not a rotation about {axis} ({zero} must be 0): {list(q)}"
     return None
 
 

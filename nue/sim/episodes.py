@@ -316,20 +316,22 @@ def _labelled(fields: dict, task: TaskConfig) -> Episode:
 
 
 def _from_habitat(items: list, name: str, task: TaskConfig, path) -> list[Episode | InvalidEpisode]:
-    scenes = [habitat.scene_of(item) if isinstance(item, dict) else "" for item in items]
+    """The entries of a habitat file (those of scene ``name`` if it holds several scenes), each an
+    :class:`Episode` or, if malformed, an :class:`InvalidEpisode` naming the field. An entry without a
+    usable ``scene_id`` is kept, and reported, whichever scene is asked for."""
+    scenes = [habitat.scene_of(item) for item in items]
     keep = range(len(items))
-    if name and len(set(scenes)) > 1:
-        keep = [i for i, s in enumerate(scenes) if s == name]
-        if not keep:
-            raise EpisodeError(path, f"no episodes of scene {name!r} (the file has {', '.join(sorted(set(scenes)))})")
+    if name and len({s for s in scenes if s}) > 1:
+        keep = [i for i, s in enumerate(scenes) if s in (name, None)]
+        if all(scenes[i] is None for i in keep):
+            raise EpisodeError(path, f"no episodes of scene {name!r} (the file has "
+                                     f"{', '.join(sorted({s for s in scenes if s}))})")
     out: list[Episode | InvalidEpisode] = []
     for i in keep:
-        item = items[i]
         try:
-            out.append(_labelled(habitat.fields_from_habitat(item, name or scenes[i]), task))
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            eid = item.get("episode_id", i) if isinstance(item, dict) else i
-            out.append(InvalidEpisode("", str(eid), f"malformed habitat episode ({type(exc).__name__}: {exc})"))
+            out.append(_labelled(habitat.fields_from_habitat(items[i], name or scenes[i] or ""), task))
+        except fields_.FieldProblem as exc:
+            out.append(InvalidEpisode("", _entry_id(items[i], i), str(exc)))
     return out
 
 

@@ -31,6 +31,7 @@ from pathlib import PurePosixPath
 
 import numpy as np
 
+from nue.sim import episode_fields as F
 from nue.sim.camera import quat_from_yaw, wrap_angle, yaw_from_quat
 
 SCENE_ID = "data/scene_datasets/gibson/{scene}.glb"
@@ -72,39 +73,73 @@ def habitat_rotation_from_yaw(yaw: float) -> list[float]:
     return [0.0, math.sin(theta / 2), 0.0, math.cos(theta / 2)]
 
 
-def scene_of(item) -> str:
-    """Scene name of a habitat episode: the stem of its ``scene_id`` (``.../Adrian.glb`` -> ``Adrian``)."""
-    return PurePosixPath(str(item.get("scene_id", ""))).name.split(".")[0]
+def scene_of(item) -> str | None:
+    """Scene name of a habitat episode: the stem of its ``scene_id`` (``.../Adrian.glb`` -> ``Adrian``),
+    or None if the entry has no usable ``scene_id`` (:func:`fields_from_habitat` names the problem)."""
+    scene_id = item.get("scene_id") if isinstance(item, dict) else None
+    name = PurePosixPath(scene_id).name.split(".")[0] if isinstance(scene_id, str) else ""
+    return name or None
+
+
+REQUIRED = ("episode_id", "scene_id", "start_position", "start_rotation", "goals")
+"""Fields every habitat episode entry must have (``info`` and a goal's ``rotation`` are optional)."""
+
+
+def _rotation(value, name: str) -> tuple[float, ...]:
+    """A habitat rotation: 4 finite numbers (x, y, z, w) forming a unit quaternion about +y_h."""
+    q = F.vector(value, name, 4)
+    problem = F.quaternion_problem(q, name, axis="y")
+    if problem:
+        raise F.FieldProblem(problem)
+    return q
 
 
 def fields_from_habitat(item, scene: str) -> dict:
     """Our :class:`~nue.sim.episodes.Episode` fields (all but the labels) of one habitat episode dict.
 
-    Raises KeyError / TypeError / ValueError for a malformed entry."""
-    episode_id = str(item["episode_id"])
-    start = position_from_habitat(item["start_position"])
+    Every field is type-checked with :mod:`nue.sim.episode_fields`: :class:`~nue.sim.episode_fields.FieldProblem`
+    naming the field for an entry that is not an object, lacks one of :data:`REQUIRED`, has a position
+    that is not 3 numbers, a rotation that is not a unit quaternion about +y_h, no goals or a first goal
+    without a position, or an ``info`` whose distances are not numbers. Only the first goal is used."""
+    if not isinstance(item, dict):
+        raise F.FieldProblem(f"expected an object with the episode's fields, got a {type(item).__name__}")
+    missing = [k for k in REQUIRED if k not in item]
+    if missing:
+        raise F.FieldProblem(f"missing field(s): {', '.join(missing)}")
+    episode_id = F.text(item["episode_id"], "episode_id")
+    if scene_of(item) is None:
+        raise F.FieldProblem(f"scene_id: expected the path of the scene's mesh, got {F._describe(item['scene_id'])}")
+    start = position_from_habitat(F.vector(item["start_position"], "start_position", 3))
+    start_yaw = yaw_from_habitat_rotation(_rotation(item["start_rotation"], "start_rotation"))
     goals = item["goals"]
-    if not goals:
-        raise ValueError("no goals")
-    goal = position_from_habitat(goals[0]["position"])
+    if not isinstance(goals, list) or not goals:
+        raise F.FieldProblem(f"goals: expected a non-empty list of goals, got {F._describe(goals)}")
+    if not isinstance(goals[0], dict) or "position" not in goals[0]:
+        raise F.FieldProblem(f"goals[0]: expected an object with a position, got {F._describe(goals[0])}")
+    goal = position_from_habitat(F.vector(goals[0]["position"], "goals[0].position", 3))
     info = item.get("info") or {}
+    if not isinstance(info, dict):
+        raise F.FieldProblem(f"info: expected an object, got {F._describe(info)}")
     if info.get("goal_rotation") is not None:
-        goal_yaw = yaw_from_habitat_rotation(info["goal_rotation"])
+        goal_yaw = yaw_from_habitat_rotation(_rotation(info["goal_rotation"], "info.goal_rotation"))
     elif goals[0].get("rotation") is not None:
-        goal_yaw = yaw_from_habitat_rotation(goals[0]["rotation"])
+        goal_yaw = yaw_from_habitat_rotation(_rotation(goals[0]["rotation"], "goals[0].rotation"))
     else:
         goal_yaw = (zlib.crc32(f"{scene}/{episode_id}".encode()) / 2**32) * 2 * math.pi
-    euclidean = float(info.get("euclidean_distance", math.hypot(goal[0] - start[0], goal[1] - start[1])))
+    euclidean = (F.number(info["euclidean_distance"], "info.euclidean_distance")
+                 if info.get("euclidean_distance") is not None else math.hypot(goal[0] - start[0], goal[1] - start[1]))
+    geodesic = (F.number(info["geodesic_distance"], "info.geodesic_distance")
+                if info.get("geodesic_distance") is not None else euclidean)
     return dict(
         episode_id=episode_id,
         scene=scene,
         start_position=start,
-        start_rotation=tuple(float(v) for v in quat_from_yaw(yaw_from_habitat_rotation(item["start_rotation"]))),
+        start_rotation=tuple(float(v) for v in quat_from_yaw(start_yaw)),
         goal_position=goal,
         goal_rotation=tuple(float(v) for v in quat_from_yaw(goal_yaw)),
         euclidean_distance=euclidean,
-        geodesic_distance=float(info.get("geodesic_distance", euclidean)),
-        scene_hash=str(info.get("scene_hash", "")),
+        geodesic_distance=geodesic,
+        scene_hash=F.text(info.get("scene_hash") or "", "info.scene_hash"),
     )
 
 
