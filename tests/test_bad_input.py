@@ -1,8 +1,9 @@
 """Bad input of every kind ends in one line ``error: <file or option>: <problem>``, exit status 2, no
 traceback, and nothing written: CLI arguments, output paths, checkpoints, record files, episode files.
 
-The CLI runs in this process (``nue.cli.main`` with ``sys.argv`` set), so each case costs no new
-interpreter; an unexpected exception fails the test just as a traceback would.
+The CLI runs in this process (``nue.cli.main(argv)``, the console entry point), so each case costs no
+new interpreter; an unexpected exception fails the test just as a traceback would. A few cases also
+run as real ``nue`` processes (the end of this file), to show the installed command behaves the same.
 """
 
 from __future__ import annotations
@@ -14,22 +15,18 @@ import sys
 import pytest
 import torch
 
+from nue.cli import main
+
 from .conftest import BOX_ROOM, FIXTURES
 
 
 def run_cli(capsys, *args) -> tuple[int, str, str]:
     """(exit status, stdout, stderr) of ``nue *args`` run in this process."""
-    from nue.cli import main
-
-    argv = sys.argv
-    sys.argv = ["nue", *map(str, args)]
     try:
-        main()
+        main([str(a) for a in args])
         code = 0
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else 1
-    finally:
-        sys.argv = argv
     out = capsys.readouterr()
     return code, out.out, out.err
 
@@ -94,6 +91,41 @@ def test_a_method_name_given_twice_is_refused(capsys, tmp_path):
     out = tmp_path / "r.jsonl"
     assert_refused(capsys, ["eval", "-c", "expert", "-c", "expert", "--out", out, "--episodes-dir", eps,
                             "--scenes-root", FIXTURES], "--checkpoint", "twice", untouched=[out])
+
+
+USAGE_CASES = {  # click's own usage errors: one line naming the command, no boxed usage text
+    "unknown-option": (["train", "--bogus"], "nue train", "No such option: --bogus"),
+    "misspelt-option": (["eval", "--worker", 2], "nue eval", "No such option: --worker (Possible options: --workers)"),
+    "not-an-int": (["eval", "--workers", "abc"], "nue eval", "Invalid value for '--workers'"),
+    "not-a-number": (["collect", "--noise", "often"], "nue collect", "Invalid value for '--noise'"),
+    "option-without-value": (["eval", "--workers"], "nue eval", "Option '--workers' requires an argument"),
+    "missing-option": (["scenes", "generate"], "nue scenes generate", "Missing option '--split'"),
+    "missing-argument": (["scenes", "info"], "nue scenes info", "Missing argument 'folders'"),
+    "unknown-command": (["evaluate"], "nue", "No such command 'evaluate'"),
+    "misspelt-subcommand": (["scenes", "generat"], "nue scenes", "Did you mean 'generate'?"),
+    "extra-argument": (["demo", "surplus"], "nue demo", "Got unexpected extra argument(s) (surplus)"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(USAGE_CASES))
+def test_usage_errors_are_one_line(capsys, tmp_path, monkeypatch, case):
+    args, command, problem = USAGE_CASES[case]
+    monkeypatch.chdir(tmp_path)  # default outputs are relative paths: nothing may appear here
+    line = assert_refused(capsys, args, f"error: {command}: ", problem, f"(see '{command} --help')")
+    assert "Usage:" not in line and "╭" not in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_houses_that_are_not_integers_are_refused(capsys, tmp_path):
+    out = tmp_path / "demos"
+    assert_refused(capsys, ["collect", "--out", out, "--houses", "1,x"], "--houses", "'1,x'", untouched=[out])
+
+
+def test_help_is_still_clicks(capsys):
+    code, out, err = run_cli(capsys, "eval", "--help")
+    assert code == 0 and err == "" and "Usage: nue eval" in out and "--workers" in out
+    code, out, err = run_cli(capsys, "scenes")  # a group alone prints its help, as click does
+    assert code == 2 and "Usage: nue scenes" in out and "generate" in out and "error" not in err
 
 
 # --- output paths ------------------------------------------------------------------------------
@@ -288,6 +320,61 @@ def test_all_bad_entries_are_named_together(capsys, tmp_path):
                    "episode 1: startXYZ", "episode 2: endQuat")
 
 
+HABITAT = {"episode_id": "7", "scene_id": "data/scene_datasets/gibson/box_room.glb", "start_position": [0.0, 0.0, 0.5],
+           "start_rotation": [0, 0, 0, 1], "goals": [{"position": [2.0, 0.0, -1.0], "radius": 0.2}],
+           "info": {"geodesic_distance": 2.55}}
+
+
+DROP = object()
+"""A field value in :func:`_habitat` that leaves the field out."""
+
+
+def _habitat(**changes) -> dict:
+    """:data:`HABITAT` with some fields changed (``None`` is JSON null) or left out (:data:`DROP`)."""
+    return {k: v for k, v in {**HABITAT, **changes}.items() if v is not DROP}
+
+
+HABITAT_CASES = {  # habitat-lab's format (y up), read by `nue episodes convert`, `nue expert` and `nue eval`
+    "start-2-values": (_habitat(start_position=[0.0, 0.5]), "episode 7", "start_position: expected 3 numbers, got [0.0, 0.5]"),
+    "start-null": (_habitat(start_position=None), "episode 7", "start_position: expected 3 numbers, got null"),
+    "start-boolean": (_habitat(start_position=[0.0, True, 0.0]), "episode 7", "start_position: expected 3 numbers"),
+    "rotation-3-values": (_habitat(start_rotation=[0, 0, 1]), "episode 7", "start_rotation: expected 4 numbers"),
+    "rotation-not-unit": (_habitat(start_rotation=[0, 0, 0, 0]), "episode 7", "start_rotation is not a unit quaternion"),
+    "rotation-tilted": (_habitat(start_rotation=[0.7071068, 0, 0, 0.7071068]), "episode 7",
+                        "start_rotation is not a rotation about y (x, z must be 0)"),
+    "goals-missing": (_habitat(goals=DROP), "episode 7", "missing field(s): goals"),
+    "goals-empty": (_habitat(goals=[]), "episode 7", "goals: expected a non-empty list of goals, got []"),
+    "goal-without-position": (_habitat(goals=[{"radius": 0.2}]), "episode 7", "goals[0]: expected an object with a position"),
+    "goal-nan": (_habitat(goals=[{"position": [float("nan"), 0.0, -1.0]}]), "episode 7", "goals[0].position is not finite"),
+    "episode-id-missing": (_habitat(episode_id=DROP), "episode #0", "missing field(s): episode_id"),
+    "scene-id-missing": (_habitat(scene_id=DROP), "episode 7", "missing field(s): scene_id"),
+    "scene-id-number": (_habitat(scene_id=3), "episode 7", "scene_id: expected the path of the scene's mesh, got 3"),
+    "entry-is-list": ([1, 2], "episode #0", "expected an object with the episode's fields, got a list"),
+    "distance-string": (_habitat(info={"geodesic_distance": "2.55"}), "episode 7", "info.geodesic_distance: expected a number"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(HABITAT_CASES))
+def test_bad_habitat_episodes_name_file_and_entry(capsys, tmp_path, case):
+    import gzip
+
+    item, entry, problem = HABITAT_CASES[case]
+    src = tmp_path / "box_room.json.gz"
+    src.write_bytes(gzip.compress(json.dumps({"episodes": [item]}).encode()))
+    out = tmp_path / "ours.json"
+    line = assert_refused(capsys, ["episodes", "convert", src, "--out", out, "--scene", BOX_ROOM], src, f"{entry}: ",
+                          problem, untouched=[out])
+    assert "malformed" not in line and "Error" not in line and line.count(f"{entry}:") == 1
+
+
+def test_bad_habitat_episodes_are_refused_by_expert_too(capsys, tmp_path):
+    src = tmp_path / "eps.json"
+    src.write_text(json.dumps({"episodes": [HABITAT, _habitat(episode_id="8", goals=[])]}))
+    records = tmp_path / "rec.jsonl"
+    assert_refused(capsys, ["expert", "--scene", BOX_ROOM, "--episodes", src, "--records", records], src,
+                   "episode 8: goals: expected a non-empty list", untouched=[records])
+
+
 # --- scenes ------------------------------------------------------------------------------------
 def _break_obj(folder, line):
     obj = folder / "mesh_z_up.obj"
@@ -326,6 +413,34 @@ def test_bad_scene_files_are_one_line(capsys, tmp_path, case):
     breakage(folder)
     line = assert_refused(capsys, ["scenes", "info", folder], named, problem)
     assert "IndexError" not in line
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf")], ids=["nan", "inf"])
+@pytest.mark.parametrize("fmt", ["glb", "ply"])
+def test_non_finite_vertices_of_glb_and_ply_meshes_are_refused(tmp_path, fmt, value):
+    """Checked as read: trimesh's clean-up would drop a PLY's NaN vertex and its faces without a word.
+    The mesh is read when the scene is rendered (``Scene.load`` with ``mesh=``, or a mesh path)."""
+    import shutil
+
+    import trimesh
+
+    from nue.errors import NueError, SceneError
+    from nue.scene.scene import Scene
+    from nue.sim.renderer import Renderer
+
+    folder = tmp_path / "scene"
+    shutil.copytree(BOX_ROOM, folder)
+    box = trimesh.creation.box((1.0, 1.0, 1.0))
+    vertices = box.vertices.copy()
+    vertices[3, 2] = value
+    mesh = folder / f"mesh.{fmt}"
+    trimesh.Trimesh(vertices, box.faces, process=False).export(mesh)
+    for load in (Scene.load(folder, mesh=mesh.name).load_mesh, lambda: Renderer(mesh)):
+        with pytest.raises(SceneError) as err:
+            load()
+        line = str(err.value)
+        assert isinstance(err.value, NueError) and "\n" not in line  # the CLI prints it as one line, exit 2
+        assert line.startswith(f"{mesh}: ") and "1 of 8 vertices" in line and "NaN or inf" in line and "vertex 3" in line
 
 
 def test_eval_refuses_an_incomplete_house_folder_and_keeps_its_files(capsys, tmp_path):
