@@ -2,24 +2,24 @@
 
 A house is a rectangle footprint (long side 9.6-14 m) centred on the world origin, split into
 3-8 rooms by a hallway or by recursive splits, with doorways, box furniture, a distinct wall and
-floor texture per room and framed pictures on the walls. ``generate_house`` writes one folder:
+floor texture per room and framed pictures on the walls (the ``gibson`` style; the held-out ``plain``
+style and every parameter are in :mod:`nue.scene.house_config`). ``generate_house`` writes one folder:
 
 - ``mesh_z_up.obj`` / ``mesh_z_up.mtl`` / ``textures/*.png``: z up, metres, one material per
   texture;
 - ``floors.txt`` (``0.0``) and ``floor_trav_0.png`` (iGibson traversability map, 1 cm / pixel);
 - ``house.json``: seed, config, rooms, doors, furniture and pictures (metres) for figures/tests.
 
-Same seed and config -> byte-identical files. ``SPLITS`` fixes the 21 train / 14 val seeds.
+Same seed and config -> byte-identical files. ``SPLITS`` fixes the 21 train / 14 val seeds and the 14
+seeds of ``val_plain``, whose houses are in the held-out style (``SPLIT_STYLES``).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import shutil
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,11 +27,11 @@ from PIL import Image
 
 from nue.errors import ConfigError, SceneError
 from nue.scene import house_textures as tx
+from nue.scene.house_config import STYLES, HouseConfig, config_dict, get_style  # noqa: F401  (HouseConfig re-exported)
 from nue.scene.house_furnish import furnish, hang_pictures
 from nue.scene.house_layout import Plan, PlanFailure, PlanParams, make_plan
 from nue.scene.house_mesh import Material, build_mesh, write_obj
 from nue.scene.house_trav import check_house, map_size, trav_map
-from nue.scene.navgrid import ROBOT_RADIUS
 from nue.scene.scene import MESH_NAME, Scene, content_hash
 
 GENERATOR_VERSION = 3
@@ -40,85 +40,16 @@ GENERATOR_VERSION = 3
 SPLITS: dict[str, tuple[int, ...]] = {
     "train": tuple(range(1000, 1021)),
     "val": tuple(range(2000, 2014)),
+    "val_plain": tuple(range(3000, 3014)),
 }
-"""Fixed house seeds: 21 training houses, 14 validation houses (disjoint)."""
+"""Fixed house seeds: 21 training houses, 14 validation houses, 14 validation houses of the held-out style
+(all disjoint)."""
+
+SPLIT_STYLES: dict[str, str] = {"val_plain": "plain"}
+"""Scene style (``STYLES``) of each split that is not ``gibson``: models never train on these."""
 
 HOUSE_FILES = ("mesh_z_up.obj", "mesh_z_up.mtl", "floors.txt", "floor_trav_0.png", "house.json")
 """Files every complete house folder holds (plus ``textures/``)."""
-
-
-@dataclass(frozen=True)
-class HouseConfig:
-    """Parameters of the house generator (lengths in metres)."""
-
-    long_side: tuple[float, float] = (9.6, 14.0)
-    """Range of the footprint's long side; >= 9.5 m gives >= 9 m of free extent."""
-    short_side: tuple[float, float] = (4.6, 10.5)
-    """Range of the footprint's short side (also capped by the long side and the area range)."""
-    footprint_area: tuple[float, float] = (50.0, 150.0)
-    """Range of the footprint area, m^2 (the floor area is ~7 % smaller: walls)."""
-    floor_area: tuple[float, float] = (40.0, 150.0)
-    """Accepted range of the total free floor area (room interiors), m^2."""
-    rooms: tuple[int, int] = (3, 8)
-    """Minimum and maximum number of rooms, the hallway included."""
-    corridor_prob: float = 0.5
-    """Probability of a hallway layout; otherwise recursive splits (BSP)."""
-    min_room_side: float = 2.6
-    """Minimum room width along either axis, on wall centre lines."""
-    corridor_width: tuple[float, float] = (1.3, 1.7)
-    """Range of the hallway width on wall centre lines (free width = this - wall thickness)."""
-    wall_height: float = 2.6
-    """Height of walls and ceiling above the floor."""
-    wall_thickness: float = 0.1
-    """Wall thickness (rounded to an even number of cm)."""
-    door_width: tuple[float, float] = (0.9, 1.2)
-    """Range of the free doorway width."""
-    door_height: float = 2.1
-    """Height of doorway openings."""
-    door_clearance: float = 1.0
-    """Depth of the furniture-free zone in front of each door, on both sides."""
-    extra_door_prob: float = 0.35
-    """Probability of an extra door between two neighbouring rooms (loops; at most two per house)."""
-    furniture_density: float = 1.0
-    """Multiplier on each piece's placement probability (0 = empty rooms; probabilities cap at 1)."""
-    pictures_per_room: tuple[int, int] = (1, 2)
-    """Range of pictures per room (one more in rooms over 20 m^2; hallways: one per 3.5 m)."""
-    picture_heights: tuple[float, float] = (1.1, 1.9)
-    """Lowest bottom and highest top edge of a picture above the floor."""
-    robot_radius: float = ROBOT_RADIUS
-    """Robot radius: free space eroded by it must stay one piece that reaches every room."""
-    min_passage: float = 0.5
-    """Furniture leaves passages at least this wide: each room's floor eroded by half of it stays one piece."""
-    min_free_extent: float = 9.0
-    """Minimum extent of the robot-free space along x or y."""
-    texture_size: int = 128
-    """Texture resolution in pixels per metre (floor) / per face (pictures)."""
-    max_attempts: int = 40
-    """Random draws tried per seed before giving up (each attempt is deterministic)."""
-
-    def validate(self) -> None:
-        """Raise ConfigError on inconsistent values."""
-        pairs = ("long_side", "short_side", "footprint_area", "floor_area", "rooms", "corridor_width",
-                 "door_width", "pictures_per_room", "picture_heights")
-        for name in pairs:
-            lo, hi = getattr(self, name)
-            if not 0 <= lo <= hi:
-                raise ConfigError("HouseConfig", f"{name} must be an increasing pair of non-negative values")
-        if self.rooms[0] < 2 or self.rooms[1] > 12:
-            raise ConfigError("HouseConfig", "rooms must lie within 2..12")
-        if self.door_width[0] < 0.6 or self.door_height >= self.wall_height:
-            raise ConfigError("HouseConfig", "doors must be >= 0.6 m wide and lower than the walls")
-        if self.corridor_width[0] - self.wall_thickness < self.door_width[0] + 0.3:
-            raise ConfigError("HouseConfig", "corridor_width minus the wall must leave door_width + 0.3 m "
-                              "(for a door at the hallway's end)")
-        if self.picture_heights[1] - self.picture_heights[0] < 0.4 or self.picture_heights[1] > self.wall_height:
-            raise ConfigError("HouseConfig", "picture_heights must span >= 0.4 m below the ceiling")
-        if self.texture_size < 16 or self.texture_size & (self.texture_size - 1):
-            raise ConfigError("HouseConfig", "texture_size must be a power of two >= 16")
-        if self.min_passage < 2 * self.robot_radius:
-            raise ConfigError("HouseConfig", "min_passage must be at least the robot's diameter")
-        if self.max_attempts < 1 or self.furniture_density < 0:
-            raise ConfigError("HouseConfig", "max_attempts must be >= 1 and furniture_density >= 0")
 
 
 def _cm(v: float) -> int:
@@ -133,14 +64,31 @@ def _plan_params(rng, cfg: HouseConfig) -> PlanParams:
     return PlanParams(long_side, short_side, max(1, _cm(cfg.wall_thickness) // 2), _cm(cfg.min_room_side),
                       (_cm(cfg.corridor_width[0]), _cm(cfg.corridor_width[1])),
                       (_cm(cfg.door_width[0]), _cm(cfg.door_width[1])), 15, cfg.rooms[1], cfg.rooms[0],
-                      cfg.corridor_prob, cfg.extra_door_prob)
+                      cfg.corridor_prob, cfg.extra_door_prob, cfg.room_area, cfg.max_extra_doors)
+
+
+def _shared_wall_colours(rng, look, hue0: float) -> list[np.ndarray]:
+    """The ``look.wall_colours`` wall colours the rooms of a house take in turn (evenly spread hues)."""
+    k = look.wall_colours
+    return [tx.hsv(hue0 + j / k, rng.uniform(*look.wall_saturation), rng.uniform(*look.wall_value)) for j in range(k)]
+
+
+def _wall_colour(rng, look, hue: float, order: int, shared: list[np.ndarray]) -> np.ndarray:
+    """A room's wall colour: the shared colour at its turn ``order``, else its own at ``hue``."""
+    if shared:
+        return shared[order % len(shared)]
+    return tx.hsv(hue, rng.uniform(*look.wall_saturation), rng.uniform(*look.wall_value))
 
 
 def _materials(rng, plan: Plan, cfg: HouseConfig) -> tuple[dict[str, Material], list[dict[str, str]]]:
-    """Per-room wall / floor textures with spread-out hues, plus shared furniture textures.
+    """Per-room wall / floor textures with spread-out hues, plus shared furniture textures (``textured``
+    surfaces; ``plain`` ones: :func:`_plain_materials`).
 
     Returns the materials and, per room, its wall and floor pattern names.
     """
+    look = cfg.appearance
+    if look.surfaces == "plain":
+        return _plain_materials(rng, plan, cfg)
     n, wh = cfg.texture_size, cfg.wall_height
     mats: dict[str, Material] = {}
     styles = []
@@ -148,6 +96,7 @@ def _materials(rng, plan: Plan, cfg: HouseConfig) -> tuple[dict[str, Material], 
     hue_order = rng.permutation(len(plan.rooms))  # evenly spread hues, neighbours not adjacent in hue
     walls = [tx.WALL_PATTERNS[i] for i in rng.permutation(len(tx.WALL_PATTERNS))]
     floors = [tx.FLOOR_PATTERNS[i] for i in rng.permutation(len(tx.FLOOR_PATTERNS))]
+    shared = _shared_wall_colours(rng, look, hue0)
     for i, room in enumerate(plan.rooms):
         hue = hue0 + hue_order[i] / len(plan.rooms)
         wall = walls[i % len(walls)]
@@ -157,8 +106,8 @@ def _materials(rng, plan: Plan, cfg: HouseConfig) -> tuple[dict[str, Material], 
         if floor in ("planks", "parquet"):
             fcol = tx.hsv(rng.uniform(0.04, 0.11), rng.uniform(0.35, 0.65), rng.uniform(0.35, 0.8))
         else:
-            fcol = tx.hsv(hue + rng.uniform(0.4, 0.6), rng.uniform(0.2, 0.55), rng.uniform(0.4, 0.85))
-        wcol = tx.hsv(hue, rng.uniform(0.12, 0.45), rng.uniform(0.68, 0.92))
+            fcol = tx.hsv(hue + rng.uniform(0.4, 0.6), rng.uniform(*look.floor_saturation), rng.uniform(*look.floor_value))
+        wcol = _wall_colour(rng, look, hue, int(hue_order[i]), shared)
         mats[f"room{i}_wall"] = Material(tx.wall_texture(rng, wall, wcol, wh, n), (1.0, wh))
         mats[f"room{i}_floor"] = Material(tx.floor_texture(rng, floor, fcol, n), (1.0, 1.0))
         styles.append({"wall": wall, "floor": floor})
@@ -182,6 +131,42 @@ def _materials(rng, plan: Plan, cfg: HouseConfig) -> tuple[dict[str, Material], 
     return mats, styles
 
 
+def _plain_materials(rng, plan: Plan, cfg: HouseConfig) -> tuple[dict[str, Material], list[dict[str, str]]]:
+    """``plain`` surfaces: one flat diffuse colour per material (faint smooth noise), walls in the style's
+    shared colours, floors one colour each, furniture in flat wood / fabric / white tones. Same material
+    names as :func:`_materials`, so the mesh is built the same way."""
+    look = cfg.appearance
+    small, wh, amount = cfg.texture_size // 2, cfg.wall_height, look.plain_noise
+
+    def flat(color) -> np.ndarray:
+        return tx.plain(rng, color, small, amount)
+
+    rooms = len(plan.rooms)
+    hue0 = rng.random()
+    hue_order = rng.permutation(rooms)
+    shared = _shared_wall_colours(rng, look, hue0)
+    mats: dict[str, Material] = {}
+    for i in range(rooms):
+        wcol = _wall_colour(rng, look, hue0 + hue_order[i] / rooms, int(hue_order[i]), shared)
+        fcol = tx.hsv(rng.random(), rng.uniform(*look.floor_saturation), rng.uniform(*look.floor_value))
+        mats[f"room{i}_wall"] = Material(flat(wcol), (1.0, wh))
+        mats[f"room{i}_floor"] = Material(flat(fcol), (1.0, 1.0))
+    mats["ceiling"] = Material(flat(tx.hsv(0.1, 0.03, 0.93)), (2.0, 2.0))
+    mats["trim"] = Material(flat(tx.hsv(0.1, 0.05, 0.88)), (1.0, 1.0))
+    wood_l = tx.hsv(rng.uniform(0.07, 0.11), rng.uniform(0.3, 0.5), rng.uniform(0.65, 0.85))
+    wood_d = tx.hsv(rng.uniform(0.03, 0.08), rng.uniform(0.4, 0.7), rng.uniform(0.25, 0.45))
+    for name, col in (("wood_light", wood_l), ("wood_dark", wood_d), ("drawers", wood_l * 0.95), ("doors", wood_l),
+                      ("books", wood_d)):
+        mats[name] = Material(flat(col), (1.0, 1.0))
+    for name in ("fabric_a", "fabric_b", "bedding"):
+        mats[name] = Material(flat(tx.hsv(rng.random(), rng.uniform(0.3, 0.7), rng.uniform(0.35, 0.8))), (0.5, 0.5))
+    mats["white"] = Material(flat(tx.hsv(0.0, 0.0, 0.92)), (1.0, 1.0))
+    mats["screen"] = Material(flat(tx.hsv(0.6, 0.3, 0.1)), (1.0, 1.0))
+    mats["pot"] = Material(flat(tx.hsv(0.05, 0.65, 0.6)), (0.5, 0.5))
+    mats["plant"] = Material(flat(tx.hsv(0.3, 0.7, 0.45)), (0.4, 0.4))
+    return mats, [{"wall": "plain", "floor": "plain"} for _ in range(rooms)]
+
+
 def _attempt(seed: int, attempt: int, cfg: HouseConfig):
     """One deterministic draw, or None if it fails a check.
 
@@ -193,7 +178,7 @@ def _attempt(seed: int, attempt: int, cfg: HouseConfig):
     except PlanFailure:
         return None
     items = furnish(rng, plan, cfg.furniture_density, _cm(cfg.door_clearance), _cm(cfg.min_passage) // 2,
-                   _cm(cfg.robot_radius))
+                   _cm(cfg.robot_radius), scale=cfg.furniture_scale)
     trav = trav_map(plan, items, map_size(plan))
     if check_house(plan, trav, cfg.robot_radius, cfg.min_free_extent, cfg.floor_area, cfg.door_width[0]):
         return None
@@ -228,7 +213,7 @@ def generate_house(seed: int, out_dir: str | Path, config: HouseConfig = HouseCo
     Image.fromarray(trav, "L").save(out / "floor_trav_0.png", format="PNG")
     meta = {
         "generator": "nue.scene.generator", "version": GENERATOR_VERSION, "seed": int(seed), "attempt": attempt,
-        "config": dataclasses.asdict(config), "layout": plan.layout, "footprint": _m(plan.footprint),
+        "config": config_dict(config), "layout": plan.layout, "footprint": _m(plan.footprint),
         "floor_area": round(sum(r.area_m2 for r in plan.rooms), 2), "triangles": mb.triangle_count,
         "trav_map_size": int(trav.shape[0]),
         "rooms": [{"name": r.name, "kind": r.kind, "rect": _m(r.interior), "area": round(r.area_m2, 2),
@@ -260,7 +245,7 @@ def house_problem(folder: Path, seed: int, config: HouseConfig) -> str | None:
         return f"house.json is unreadable ({type(exc).__name__})"
     if not isinstance(meta, dict) or meta.get("generator") != "nue.scene.generator":
         return "house.json was not written by nue's house generator"
-    want = {"seed": seed, "version": GENERATOR_VERSION, "config": json.loads(json.dumps(dataclasses.asdict(config)))}
+    want = {"seed": seed, "version": GENERATOR_VERSION, "config": json.loads(json.dumps(config_dict(config)))}
     for key, value in want.items():
         if meta.get(key) != value:
             return f"holds a different house ({key} differs)"
@@ -306,7 +291,14 @@ def _remove_stale_temps(root: Path, name: str) -> None:
             pass
 
 
-def generate_split(split: str, out_root: str | Path, config: HouseConfig = HouseConfig(),
+def split_config(split: str) -> HouseConfig:
+    """The generator config (scene style) of a split's houses: ``SPLIT_STYLES``, else ``gibson``."""
+    if split not in SPLITS:
+        raise ConfigError(split, f"unknown split; choose one of {sorted(SPLITS)}")
+    return get_style(SPLIT_STYLES.get(split, "gibson"))
+
+
+def generate_split(split: str, out_root: str | Path, config: HouseConfig | None = None,
                    progress: bool = True, force: bool = False) -> list[Path]:
     """Write ``out_root/<split>_<NN>/`` for every seed of ``split``; intact houses are kept.
 
@@ -314,10 +306,9 @@ def generate_split(split: str, out_root: str | Path, config: HouseConfig = House
     leaves no half-written house. A folder that is not an intact copy of its house
     (:func:`house_problem`) is refused with :class:`SceneError`; with ``force`` it is regenerated if
     its ``house.json`` shows our generator made it (a folder of the user's is never overwritten).
-    Unknown split -> ConfigError.
+    ``config`` defaults to the split's style (:func:`split_config`). Unknown split -> ConfigError.
     """
-    if split not in SPLITS:
-        raise ConfigError(split, f"unknown split; choose one of {sorted(SPLITS)}")
+    config = config or split_config(split)
     config.validate()
     root = Path(out_root)
     root.mkdir(parents=True, exist_ok=True)
@@ -340,12 +331,13 @@ def generate_split(split: str, out_root: str | Path, config: HouseConfig = House
     return paths
 
 
-def ensure_house(split: str, index: int, root: str | Path, config: HouseConfig = HouseConfig()) -> Path:
-    """``root/<split>_<NN>/``: house ``index`` of ``split``, generated if the folder does not exist; a
-    folder that is not an intact copy of exactly this house (:func:`house_problem`) is refused with
-    :class:`SceneError`, never overwritten."""
+def ensure_house(split: str, index: int, root: str | Path, config: HouseConfig | None = None) -> Path:
+    """``root/<split>_<NN>/``: house ``index`` of ``split`` (in the split's style unless ``config`` is given),
+    generated if the folder does not exist; a folder that is not an intact copy of exactly this house
+    (:func:`house_problem`) is refused with :class:`SceneError`, never overwritten."""
     if split not in SPLITS:
         raise ConfigError(split, f"unknown split; choose one of {sorted(SPLITS)}")
+    config = config or split_config(split)
     seed = SPLITS[split][index]
     folder = Path(root) / f"{split}_{index:02d}"
     if not folder.exists():

@@ -210,13 +210,20 @@ def _world_boxes(local: list[Box], rect: Rect, back: tuple[int, int]):
     return out
 
 
-def _try_place(rng, kind: str, interior: Rect, zones: list[Rect], items: list[Item]):
-    """A random candidate for ``kind`` that avoids door zones and other pieces, or None.
+def _scaled(ranges, scale: tuple[float, float, float]) -> list[tuple[int, int]]:
+    """A template's (width, depth, height) ranges in cm, each multiplied by its factor of ``scale``."""
+    return [(int(round(lo * s)), int(round(hi * s))) for (lo, hi), s in zip(ranges, scale)]
+
+
+def _try_place(rng, kind: str, interior: Rect, zones: list[Rect], items: list[Item],
+               scale: tuple[float, float, float] = (1.0, 1.0, 1.0)):
+    """A random candidate for ``kind`` (its template's sizes times ``scale``) that avoids door zones and
+    other pieces, or None.
 
     Returns ``(footprint, back (axis, sign), against_wall, (w, d, h))``.
     """
-    (wlo, whi), (dlo, dhi), (hlo, hhi), where, _ = TEMPLATES[kind]
-    w, d, h = (int(rng.integers(lo, hi + 1)) for lo, hi in ((wlo, whi), (dlo, dhi), (hlo, hhi)))
+    *ranges, where, _ = TEMPLATES[kind]
+    w, d, h = (int(rng.integers(lo, hi + 1)) for lo, hi in _scaled(ranges, scale))
     wall = where == "wall" or (where == "any" and rng.random() < 0.5)
     axis, sign = _SIDES[int(rng.integers(0, 4))]
     size = (d, w) if axis == 0 else (w, d)  # footprint extent along x, y
@@ -239,11 +246,13 @@ def _try_place(rng, kind: str, interior: Rect, zones: list[Rect], items: list[It
     return rect, (axis, sign), wall, (w, d, h)
 
 
-def furnish(rng, plan: Plan, density: float, clearance: int, passage: int, robot: int, tries: int = 12) -> list[Item]:
+def furnish(rng, plan: Plan, density: float, clearance: int, passage: int, robot: int, tries: int = 12,
+            scale: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> list[Item]:
     """Place furniture in every room of ``plan`` (see module docstring).
 
     ``passage``: half the minimum passage width; ``robot``: robot radius (cm). Each room's floor must
     stay one piece when eroded by ``passage`` and by radii around ``robot`` (no isolated slivers).
+    ``scale``: factors on every template's width, depth and height ranges.
     """
     radii = (passage, robot - 2, robot, robot + 2)
     items: list[Item] = []
@@ -258,7 +267,7 @@ def furnish(rng, plan: Plan, density: float, clearance: int, passage: int, robot
             if rng.random() >= min(1.0, prob * density):
                 continue
             for _ in range(tries):
-                cand = _try_place(rng, kind, room.interior, zones, mine)
+                cand = _try_place(rng, kind, room.interior, zones, mine, scale)
                 if cand is None:
                     continue
                 rect, back, wall, (w, d, h) = cand

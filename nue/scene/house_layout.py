@@ -10,8 +10,9 @@ a wall thickness. Two layouts:
 - ``bsp``: recursive binary splits of the footprint, one door in every dividing wall, which
   connects the two halves of every split and hence the whole house.
 
-Both may add extra doors between neighbouring rooms (loops). Plans are built with the long axis
-along x and then rotated / mirrored at random, so houses are centred on the world origin.
+Both may add extra doors between neighbouring rooms (loops, at most ``max_extra_doors``). Plans are
+built with the long axis along x and then rotated / mirrored at random, so houses are centred on the
+world origin.
 """
 
 from __future__ import annotations
@@ -109,6 +110,10 @@ class PlanParams:
     min_rooms: int
     corridor_prob: float
     extra_door_prob: float
+    room_area: tuple[float, float] = (12.0, 20.0)
+    """BSP: range of the mean room area, m^2."""
+    max_extra_doors: int = 2
+    """At most this many loop doors per house."""
 
 
 def shared_wall(a: Rect, b: Rect) -> tuple[int, int, int, int] | None:
@@ -215,7 +220,7 @@ def _bsp_plan(rng, p: PlanParams) -> Plan:
     """Recursive splits of the footprint; one door per split joins its two halves."""
     L, S, ms = p.long_side, p.short_side, p.min_room_side
     fp = (-L // 2, -S // 2, L // 2, S // 2)
-    target = int(np.clip(round(L * S / 1e4 / rng.uniform(12.0, 20.0)), p.min_rooms, p.max_rooms))
+    target = int(np.clip(round(L * S / 1e4 / rng.uniform(*p.room_area)), p.min_rooms, p.max_rooms))
     leaves: list[Rect] = [fp]
     splits: list[tuple[Rect, Rect]] = []
     while len(leaves) < target:
@@ -256,10 +261,10 @@ def _bsp_plan(rng, p: PlanParams) -> Plan:
 
 
 def _extra_doors(rng, p: PlanParams, plan: Plan, pairs: list[tuple[int, int]]) -> None:
-    """Add loop doors between some neighbouring rooms (at most two per house)."""
+    """Add loop doors between some neighbouring rooms (at most ``p.max_extra_doors`` per house)."""
     added = 0
     for i, j in pairs:
-        if added < 2 and rng.random() < p.extra_door_prob:
+        if added < p.max_extra_doors and rng.random() < p.extra_door_prob:
             door = _place_door(rng, p, plan.rooms, i, j)
             if door is not None:
                 plan.doors.append(door)
