@@ -264,6 +264,12 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
         sampler = SequenceSampler(data, per_rank, cfg.seq_len, rng, rank=0, world=1)
     else:
         sampler = BufferSampler(data, per_rank, rng, cfg.buffer_episodes, rank=0, world=1)
+    # Before a resume restores torch's generator: building the memory's field (policy_meta) draws from it.
+    memory_cfg = MemoryConfig.from_dict(data.manifest["memory"])
+    meta = policy_meta(task, memory_cfg, model_cfg, data.manifest["scenes"], manifest_hash(data.manifest),
+                       {**dataclasses.asdict(cfg), "precision_resolved": resolve_precision(cfg.precision, device)},
+                       {"episodes": data.n_episodes, "steps": len(data),
+                                                 "skipped": [str(p) for p, _ in data.skipped]})
     if resume and (out_dir / "last.pt").is_file():
         # Everything the next step depends on: weights, optimiser, schedule, clock, and per rank the
         # generator, the sampler's position and torch's generator (older checkpoints: the generator only).
@@ -280,11 +286,6 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
             sampler.load_state_dict(ck["sampler_states"][rank])
             torch.set_rng_state(ck["torch_rng_states"][rank])
 
-    memory_cfg = MemoryConfig.from_dict(data.manifest["memory"])
-    meta = policy_meta(task, memory_cfg, model_cfg, data.manifest["scenes"], manifest_hash(data.manifest),
-                       {**dataclasses.asdict(cfg), "precision_resolved": resolve_precision(cfg.precision, device)},
-                       {"episodes": data.n_episodes, "steps": len(data),
-                                                 "skipped": [str(p) for p, _ in data.skipped]})
     writer = None
     if rank == 0:
         from torch.utils.tensorboard import SummaryWriter
