@@ -55,7 +55,7 @@ def tiny_demos(tmp_path_factory):
     return out
 
 
-STEPS = 24
+STEPS = 16
 """Optimiser steps of the runs below; the kill comes at the first checkpoint (step 2), long before the end."""
 
 
