@@ -231,26 +231,30 @@ def test_checkpoint_embeds_presets_and_refuses_mismatches(demos, tmp_path):
     from nue.nerf.config import get_memory
     from nue.sim.task import get_task
     from nue.train.bc import TrainConfig, train
-    from nue.train.checkpoint import check_compatible, load_checkpoint, load_policy
+    from nue.train.checkpoint import PolicyHeader, check_compatible, load_checkpoint, load_policy
+    from nue.train.manifest import read_manifest
 
     res = train(TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=2, batch_size=4, eval_every=2), progress=False)
-    model, ckpt = load_policy(res.best)
-    assert ckpt["task"]["name"] == "paper" and ckpt["memory"]["name"] == "fast" and len(ckpt["manifest_hash"]) == 16
-    assert ckpt["memory_init"] and set(ckpt["scenes"]) == {"room_a", "room_b"}
-    check_compatible(ckpt, res.best, get_task("paper"), get_memory("fast"), {"room_a": ckpt["scenes"]["room_a"]})
+    model, header = load_policy(res.best)
+    assert header.task == "paper" and header.memory == get_memory("fast") and header.model == model.config
+    assert header.manifest_hash == read_manifest(demos).hash() and set(header.scenes) == {"room_a", "room_b"}
+    ckpt = load_checkpoint(res.best)
+    assert ckpt["memory_init"] and PolicyHeader.from_dict(header.to_dict()) == header
+    assert {k: ckpt[k] for k in header.to_dict()} == header.to_dict()  # the file holds exactly the header's entries
+    check_compatible(header, res.best, get_task("paper"), get_memory("fast"), {"room_a": header.scenes["room_a"]})
     with pytest.raises(CheckpointError, match="trained for task preset 'paper'"):
-        check_compatible(ckpt, res.best, task=get_task("habitat"))
+        check_compatible(header, res.best, task=get_task("habitat"))
     with pytest.raises(CheckpointError, match="memory preset differs"):
-        check_compatible(ckpt, res.best, memory=get_memory("authors"))
+        check_compatible(header, res.best, memory=get_memory("authors"))
     with pytest.raises(CheckpointError, match="scene room_a has content 0000"):
-        check_compatible(ckpt, res.best, scenes={"room_a": "0000000000000000"})
+        check_compatible(header, res.best, scenes={"room_a": "0000000000000000"})
 
 
 def test_dagger_round_collects_policy_rollouts_labelled_by_the_expert(demos, houses, tmp_path):
     import json
 
-    res = _cli("train", "--data", demos, "--out", tmp_path / "run", "--steps", 4, "--batch-size", 8, "--eval-every", 4,
-               "--dagger-rounds", 1, "--dagger-steps", 2, "--scene", houses[0], "--scene", houses[1],
+    res = _cli("dagger", "--data", demos, "--out", tmp_path / "run", "--steps", 4, "--batch-size", 8, "--eval-every", 4,
+               "--rounds", 1, "--round-steps", 2, "--scene", houses[0], "--scene", houses[1],
                "--scenes-root", tmp_path / "scenes")
     assert res.returncode == 0, res.stderr[-2000:]
     rounds = json.loads((tmp_path / "run" / "dagger.json").read_text())
@@ -280,8 +284,8 @@ def test_dagger_from_a_given_checkpoint_counts_rollouts_against_the_round_budget
 
     start = train(TrainConfig(data=str(demos), out=str(tmp_path / "bc"), steps=2, batch_size=4, eval_every=2),
                   progress=False).best
-    res = _cli("train", "--data", demos, "--out", tmp_path / "run", "--batch-size", 8, "--eval-every", 1000,
-               "--dagger-rounds", 1, "--dagger-steps", 1000, "--dagger-start", start, "--dagger-episodes-per-bin", 1,
+    res = _cli("dagger", "--data", demos, "--out", tmp_path / "run", "--batch-size", 8, "--eval-every", 1000,
+               "--rounds", 1, "--round-steps", 1000, "--start", start, "--episodes-per-bin", 1,
                "--time-budget", 0.01, "--scene", houses[0], "--scene", houses[1], "--scenes-root", tmp_path / "scenes")
     assert res.returncode == 0, res.stderr[-2000:]
     rounds = json.loads((tmp_path / "run" / "dagger.json").read_text())
@@ -295,8 +299,31 @@ def test_dagger_from_a_given_checkpoint_counts_rollouts_against_the_round_budget
     assert load_checkpoint(tmp_path / "run" / "round_1" / "best.pt")["model_config"]["name"] == "nue"
 
 
+def test_deprecated_train_dagger_options_run_the_same_dagger(monkeypatch, capsys, tmp_path):
+    """``nue train --dagger-*`` (deprecated) builds the same run as ``nue dagger`` and warns on stderr."""
+    import nue.cli_learn
+    from nue.cli import main
+
+    runs = []
+    monkeypatch.setattr(nue.cli_learn, "_run_dagger", lambda *args: runs.append(args))
+    common = ["--data", str(tmp_path / "d"), "--out", str(tmp_path / "run"), "--steps", "7", "--time-budget", "2",
+              "--scene", "a", "--scenes-root", str(tmp_path / "s"), "--workers", "2"]
+    for argv in (["train", *common, "--dagger-rounds", "3", "--dagger-steps", "5", "--dagger-beta", "0.3",
+                  "--dagger-episodes-per-bin", "1", "--dagger-start", "x.pt"],
+                 ["dagger", *common, "--rounds", "3", "--round-steps", "5", "--beta", "0.3", "--episodes-per-bin", "1",
+                  "--start", "x.pt"]):
+        with pytest.raises(SystemExit) as stop:
+            main(argv)
+        assert stop.value.code == 0
+    assert "deprecated; use `nue dagger`" in capsys.readouterr().err
+    old, new = runs
+    assert old == new and new[1].rounds == 3 and new[1].round_budget_s == 120 and new[0].steps == 7
+
+
 def test_subsample_keeps_the_first_episodes_of_each_bin():
+    from types import SimpleNamespace
+
     from nue.train.collect import _first_per_bin
 
-    eps = [{"difficulty": d, "episode_id": f"{d}_{i}"} for d in ("easy", "medium") for i in range(3)]
-    assert [e["episode_id"] for e in _first_per_bin(eps, 2)] == ["easy_0", "easy_1", "medium_0", "medium_1"]
+    eps = [SimpleNamespace(difficulty=d, episode_id=f"{d}_{i}") for d in ("easy", "medium") for i in range(3)]
+    assert [e.episode_id for e in _first_per_bin(eps, 2)] == ["easy_0", "easy_1", "medium_0", "medium_1"]

@@ -1,5 +1,6 @@
 """The checkpoints shipped in checkpoints/: they load, rebuild their model, act on a real-shaped input,
-carry the provenance the README promises, and fit the 20 MB budget."""
+carry the provenance the README promises, and fit the 20 MB budget; every checkpoint in the repository
+(also results/v*/checkpoints/) reads into a PolicyHeader that writes back the same entries."""
 
 from __future__ import annotations
 
@@ -10,12 +11,13 @@ import numpy as np
 import pytest
 import torch
 
-from nue.nerf.config import MemoryConfig
 from nue.policy.inputs import prepare_input
-from nue.train.checkpoint import load_policy
+from nue.train.checkpoint import PolicyHeader, load_checkpoint, load_policy
 
-ROOT = Path(__file__).resolve().parents[1] / "checkpoints"
+REPO = Path(__file__).resolve().parents[1]
+ROOT = REPO / "checkpoints"
 FILES = sorted(ROOT.glob("*.pt"))
+ALL_FILES = FILES + sorted(REPO.glob("results/v*/checkpoints/*.pt"))
 
 
 def test_the_nue_checkpoint_is_shipped_and_all_fit_20_mb():
@@ -28,12 +30,12 @@ def test_the_nue_checkpoint_is_shipped_and_all_fit_20_mb():
 
 @pytest.mark.parametrize("path", FILES, ids=[p.stem for p in FILES])
 def test_shipped_checkpoint_loads_and_acts(path):
-    model, ckpt = load_policy(path)
-    assert ckpt["model_config"]["name"] == path.stem
-    assert ckpt["task"]["name"] == "paper" and re.fullmatch(r"[0-9a-f]{16}", ckpt["manifest_hash"])
-    assert len(ckpt["scenes"]) == 21 and all(name.startswith("train_") for name in ckpt["scenes"])
-    assert re.fullmatch(r"[0-9a-f]{40}", ckpt["git_commit"])
-    memory = MemoryConfig.from_dict(ckpt["memory"])
+    model, header = load_policy(path)
+    assert header.name == path.stem
+    assert header.task == "paper" and re.fullmatch(r"[0-9a-f]{16}", header.manifest_hash)
+    assert len(header.scenes) == 21 and all(name.startswith("train_") for name in header.scenes)
+    assert re.fullmatch(r"[0-9a-f]{40}", header.git_commit)
+    memory = header.memory
     cfg = model.config
     rng = np.random.default_rng(0)
     rgb = rng.integers(0, 256, (180, 240, 3), dtype=np.uint8)
@@ -44,3 +46,21 @@ def test_shipped_checkpoint_loads_and_acts(path):
     with torch.no_grad():
         out = model(inp, model.initial_state(1, "cpu"))
     assert out.logits.shape == (1, cfg.num_actions) and torch.isfinite(out.logits).all()
+
+
+@pytest.mark.parametrize("path", ALL_FILES, ids=[str(p.relative_to(REPO)) for p in ALL_FILES])
+def test_checkpoint_header_round_trips(path):
+    """Checkpoints written before the header was typed read into a PolicyHeader that writes back every entry
+    of the file unchanged (config fields added since then are written with their defaults)."""
+    ckpt = load_checkpoint(path)
+    header = PolicyHeader.from_dict(ckpt, path)
+    stored = header.to_dict()
+    assert _within({k: ckpt[k] for k in stored}, stored) and PolicyHeader.from_dict(stored) == header
+    assert header.memory is not None and header.task == "paper" and header.model.name in path.stem
+
+
+def _within(part, full) -> bool:
+    """Every entry of ``part`` (nested dicts) is in ``full`` with the same value."""
+    if isinstance(part, dict):
+        return isinstance(full, dict) and all(k in full and _within(v, full[k]) for k, v in part.items())
+    return part == full

@@ -5,7 +5,8 @@ with its checkpoint's online NeRF memory (fixed initial weights from the checkpo
 appended one line at a time (a single ``write`` + ``fsync``); rerunning the command skips the
 episodes already recorded, so a killed evaluation resumes. Local worker processes or Ray tasks, as
 in ``nue collect``. ``swap_maps`` feeds a policy the memory maps recorded in a *different* episode of
-the same house (a control that shows whether the memory is used).
+the same house (a control that shows whether the memory is used). Each episode of each method travels
+to its worker as an :class:`~nue.evaluate.eval_job.EvalJob`.
 """
 
 from __future__ import annotations
@@ -14,11 +15,12 @@ import hashlib
 import json
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 from nue.errors import CheckpointError, ConfigError, DataError
 from nue.evaluate.coverage import CoverageTracker
+from nue.evaluate.eval_job import EvalJob, RunSettings
 from nue.jobs import Job, episode_seed, run_jobs, worker_cached
 from nue.policy.agent import ExpertAgent
 from nue.rollout import run_episode
@@ -29,7 +31,8 @@ from nue.sim.env import make_env
 from nue.sim.episodes import Episode, read_episodes
 from nue.sim.explorer import ExploringExpert
 from nue.sim.task import get_task
-from nue.train.checkpoint import check_compatible, load_agent, load_checkpoint
+from nue.train.checkpoint import PolicyHeader, check_compatible, load_agent, load_header
+
 EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore"}
 """Method specs that run an expert instead of a checkpoint -> ``ExpertAgent(kind=...)``."""
 
@@ -72,7 +75,7 @@ def parse_method(spec: str) -> tuple[str, str | None]:
         if not name.strip() or not path.strip():
             raise ConfigError("--checkpoint", f"{spec!r}: expected name=path with a non-empty name and path")
         return name, path
-    return load_checkpoint(spec)["model_config"]["name"], spec
+    return load_header(spec).name, spec
 
 
 def episode_files(folder) -> list[Path]:
@@ -94,6 +97,7 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
         raise ConfigError("--checkpoint", f"method name {twice[0]!r} given twice; name them apart with name=path")
     checked = {ckpt: checked_checkpoint(ckpt, cfg.task) for _, ckpt in parsed if ckpt is not None}
     digests = {ckpt: sha for ckpt, (_, sha) in checked.items()}
+    swap = "+swap" if cfg.swap_maps else ""
     files = episode_files(cfg.episodes_dir)
     jobs = []
     for f in files:
@@ -104,8 +108,8 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
         except (ValueError, IndexError):
             folder = Path(cfg.scenes_root) / name
         scene = Scene.load(folder)
-        for ckpt, (contents, _) in checked.items():  # a house whose content changed since training is refused here
-            check_compatible(contents, ckpt, scenes={scene.name: scene.content_hash})
+        for ckpt, (header, _) in checked.items():  # a house whose content changed since training is refused here
+            check_compatible(header, ckpt, scenes={scene.name: scene.content_hash})
         loaded = read_episodes(f, scene, cfg.task, navgrid=NavGrid.from_scene(scene), skip_invalid=cfg.skip_invalid)
         if skipped is not None:
             skipped.extend(loaded.skipped)
@@ -115,24 +119,22 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
         for i, ep in enumerate(eps):
             other = eps[(i + 1) % len(eps)] if cfg.swap_maps else None
             for method, ckpt in parsed:
-                key = f"{method}{'+swap' if cfg.swap_maps else ''}/{scene.name}/{ep.episode_id}"
-                settings = run_settings(cfg, digests.get(ckpt, method), asdict(ep), scene.content_hash)
-                jobs.append(Job(key, {"settings": settings,
-                    "method": method + ("+swap" if cfg.swap_maps else ""), "checkpoint": ckpt, "scene": str(folder),
-                    "episode": asdict(ep), "other": asdict(other) if other else None, "task": cfg.task,
-                    "seed": episode_seed(cfg.seed, scene.name, ep.episode_id), "device": cfg.device,
-                    "coverage": cfg.coverage, "max_steps": cfg.max_steps,
-                }))
+                settings = run_settings(cfg, digests.get(ckpt, method), ep, scene.content_hash)
+                jobs.append(Job(f"{method}{swap}/{scene.name}/{ep.episode_id}", EvalJob(
+                    method=method + swap, checkpoint=ckpt, expert=EXPERT_METHODS.get(method, "") if ckpt is None else "",
+                    scene=str(folder), episode=ep, other=other, task=cfg.task,
+                    seed=episode_seed(cfg.seed, scene.name, ep.episode_id), device=cfg.device, coverage=cfg.coverage,
+                    max_steps=cfg.max_steps, settings=settings)))
     return jobs
 
 
-def checked_checkpoint(path: str, task: str) -> tuple[dict, str]:
+def checked_checkpoint(path: str, task: str) -> tuple[PolicyHeader, str]:
     """Check a checkpoint once in the driver (readable, finite weights, trained for ``task``) before any
-    episode runs (:func:`plan_eval` then checks each house against it); returns its contents and
+    episode runs (:func:`plan_eval` then checks each house against it); returns its header and
     :func:`file_sha256`."""
-    contents = load_checkpoint(path)
-    check_compatible(contents, path, task=get_task(task))
-    return contents, file_sha256(path)
+    header = load_header(path)
+    check_compatible(header, path, task=get_task(task))
+    return header, file_sha256(path)
 
 
 def file_sha256(path: str) -> str:
@@ -147,13 +149,11 @@ def file_sha256(path: str) -> str:
     return h.hexdigest()[:16]
 
 
-def run_settings(cfg: EvalConfig, agent: str, episode: dict, scene_hash: str) -> dict:
-    """Everything that changes an episode's record, stored in it (``extra['settings']``) and compared on
-    resume: the checkpoint's content hash (or the expert's name), task preset, step limit, seed, maps
-    swap, coverage, the episode itself and the scene's content hash. The device is left out."""
-    ep = hashlib.sha256(json.dumps(episode, sort_keys=True).encode()).hexdigest()[:16]
-    return {"agent": agent, "task": cfg.task, "max_steps": cfg.max_steps, "seed": cfg.seed,
-            "swap_maps": cfg.swap_maps, "coverage": cfg.coverage, "episode": ep, "scene": scene_hash}
+def run_settings(cfg: EvalConfig, agent: str, episode: Episode, scene_hash: str) -> RunSettings:
+    """The :class:`RunSettings` of one episode of a run: the checkpoint's content hash (or the expert's
+    name), task preset, step limit, seed, maps swap, coverage, the episode itself and the scene's content hash."""
+    return RunSettings(agent=agent, task=cfg.task, max_steps=cfg.max_steps, seed=cfg.seed, swap_maps=cfg.swap_maps,
+                       coverage=cfg.coverage, episode=RunSettings.episode_digest(episode), scene=scene_hash)
 
 
 def recorded_settings(path: Path) -> dict[str, dict | None]:
@@ -169,8 +169,7 @@ def check_resumable(path: Path, jobs: list[Job]) -> set[str]:
     for job in jobs:
         if job.key not in old:
             continue
-        before, now = old[job.key], job.payload["settings"]
-        diff = ["settings (an older record)"] if before is None else sorted(k for k in now if before.get(k) != now[k])
+        diff = job.payload.settings.differences(old[job.key])
         if diff:
             clash.setdefault(", ".join(diff), []).append(job.key)
     if clash:
@@ -257,35 +256,31 @@ class MapReplay:
         pass
 
 
-def _env(payload):
-    return worker_cached(("env", payload["scene"], payload["task"], payload.get("max_steps", 0)),
-                         lambda: make_env(payload["scene"], payload["task"], payload.get("max_steps", 0)))
+def _env(job: EvalJob):
+    return worker_cached(("env", job.scene, job.task, job.max_steps), lambda: make_env(job.scene, job.task, job.max_steps))
 
 
-def _policy(payload, env):
+def _policy(job: EvalJob, env):
     """The checkpoint's agent and memory, loaded once per worker (:func:`plan_eval` checked the houses)."""
-    return worker_cached(("policy", payload["checkpoint"], payload["device"], env.task.name),
-                         lambda: load_agent(payload["checkpoint"], env.task, payload["device"]))
+    return worker_cached(("policy", job.checkpoint, job.device, env.task.name),
+                         lambda: load_agent(job.checkpoint, env.task, job.device))
 
 
 def eval_episode(job: Job) -> dict:
     """Worker: one episode of one method; returns its record as a dict."""
-    p = job.payload
+    p: EvalJob = job.payload
     env = _env(p)
-    episode = Episode.from_dict(p["episode"])
-    extra = {"key": job.key, "seed": p["seed"], "checkpoint": p["checkpoint"], "settings": p["settings"]}
-    if p["checkpoint"] is None:
-        kind = EXPERT_METHODS.get(p["method"].split("+")[0], "geodesic")
-        agent, memory = ExpertAgent(kind=kind), None
+    extra = {"key": job.key, "seed": p.seed, "checkpoint": p.checkpoint, "settings": p.settings.to_dict()}
+    if p.checkpoint is None:
+        agent, memory = ExpertAgent(kind=p.expert or "geodesic"), None
     else:
         agent, memory = _policy(p, env)
         extra["git_commit"] = agent.git_commit
-        if p.get("other") and memory is not None:
+        if p.other is not None and memory is not None:
             memory = MapReplay(_record_maps(env, memory, p))
-    tracker = CoverageTracker(env.task.camera, env.navgrid, env.floor_z) if p["coverage"] else None
+    tracker = CoverageTracker(env.task.camera, env.navgrid, env.floor_z) if p.coverage else None
     t0 = time.perf_counter()
-    record = run_episode(env, agent, episode=episode, memory=memory, seed=p["seed"], on_step=tracker,
-                         method=p["method"])
+    record = run_episode(env, agent, episode=p.episode, memory=memory, seed=p.seed, on_step=tracker, method=p.method)
     extra["wall_time"] = time.perf_counter() - t0
     if isinstance(getattr(agent, "expert", None), ExploringExpert):
         extra["explorer"] = dict(agent.expert.stats)
@@ -297,11 +292,10 @@ def eval_episode(job: Job) -> dict:
     return d
 
 
-def _record_maps(env, memory, p) -> list:
+def _record_maps(env, memory, job: EvalJob) -> list:
     """Maps the memory renders along the expert's run of the *other* episode (for ``swap_maps``)."""
-    other = Episode.from_dict(p["other"])
     maps: list = []
-    run_episode(env, ExpertAgent(), episode=other, memory=memory, seed=p["seed"], on_step=lambda s: maps.append(s.maps))
+    run_episode(env, ExpertAgent(), episode=job.other, memory=memory, seed=job.seed, on_step=lambda s: maps.append(s.maps))
     if not maps:
-        raise CheckpointError(p["checkpoint"], "swap_maps: the other episode produced no maps")
+        raise CheckpointError(job.checkpoint, "swap_maps: the other episode produced no maps")
     return maps

@@ -25,14 +25,13 @@ from tqdm import tqdm
 
 from nue.errors import CheckpointError, ConfigError, DataError
 from nue.jobs import fail_point
-from nue.nerf.config import MemoryConfig
 from nue.policy import build_model
 from nue.policy.base import PolicyOutput, angle_l1_loss, wrap_angle_t
 from nue.policy.config import get_model_config
 from nue.sim.task import get_task
-from nue.train.checkpoint import load_checkpoint, policy_meta, save_checkpoint
-from nue.train.collect import manifest_hash
+from nue.train.checkpoint import PolicyHeader, load_checkpoint, policy_meta, save_checkpoint
 from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler, data_roots, swap_maps
+from nue.train.manifest import CollectionManifest, manifest_path
 from nue.train.select import SelectConfig, select_checkpoint
 
 
@@ -237,7 +236,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
         raise DataError(cfg.data, "no usable episode files in train/")
     first = data_roots(cfg.data)[0]
     heldout = DemoSet(first, "heldout", verify=cfg.verify_data) if (first / "heldout").is_dir() else None
-    task = get_task(data.manifest["task"])
+    manifest = CollectionManifest.from_dict(data.manifest, manifest_path(data.root))
+    task = get_task(manifest.task)
     model_cfg = get_model_config(cfg.model).for_task(task)
     data.check_layout(model_cfg)
     weights = class_weights(data.action_counts(model_cfg.num_actions), cfg.class_balance)
@@ -247,7 +247,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     model = build_model(model_cfg).to(device)
     if cfg.init_from:
         init = load_checkpoint(cfg.init_from)
-        if init["model_config"] != model_cfg.to_dict():
+        if PolicyHeader.from_dict(init, cfg.init_from).model != model_cfg:
             raise CheckpointError(cfg.init_from, f"holds another model config than {model_cfg.name!r}")
         model.load_state_dict(init["model_state"])
     net = SequenceForward(model)
@@ -265,8 +265,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     else:
         sampler = BufferSampler(data, per_rank, rng, cfg.buffer_episodes, rank=0, world=1)
     # Before a resume restores torch's generator: building the memory's field (policy_meta) draws from it.
-    memory_cfg = MemoryConfig.from_dict(data.manifest["memory"])
-    meta = policy_meta(task, memory_cfg, model_cfg, data.manifest["scenes"], manifest_hash(data.manifest),
+    meta = policy_meta(task, manifest.memory, model_cfg, manifest.scenes, manifest.hash(),
                        {**dataclasses.asdict(cfg), "precision_resolved": resolve_precision(cfg.precision, device)},
                        {"episodes": data.n_episodes, "steps": len(data),
                                                  "skipped": [str(p) for p, _ in data.skipped]})
@@ -274,7 +273,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
         # Everything the next step depends on: weights, optimiser, schedule, clock, and per rank the
         # generator, the sampler's position and torch's generator (older checkpoints: the generator only).
         ck = load_checkpoint(out_dir / "last.pt")
-        if ck["model_config"] != model_cfg.to_dict():
+        if PolicyHeader.from_dict(ck, out_dir / "last.pt").model != model_cfg:
             raise CheckpointError(out_dir / "last.pt", "was trained with another model config; use another --out")
         model.load_state_dict(ck["model_state"])
         opt.load_state_dict(ck["optimizer"])

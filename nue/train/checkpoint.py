@@ -2,9 +2,12 @@
 
 A checkpoint embeds the task preset, the memory (NeRF) config and its fixed initial weights, the
 model config, the demonstration manifest's hash and scene hashes, the git commit and the training
-config. Saving is atomic (temporary file + rename). ``load_policy`` rebuilds the network;
-``check_compatible`` refuses a task/memory preset or scene set that differs from the stored one;
-``load_agent`` gives the agent and memory of the shared loop (eval, DAgger collection, the demo).
+config. In code that description is a :class:`PolicyHeader`; the file (``torch.save`` of a dict,
+format ``nue-checkpoint/1``) holds its :meth:`~PolicyHeader.to_dict` next to the weights and training
+state. Saving is atomic (temporary file + rename). ``load_header`` reads the description,
+``load_policy`` rebuilds the network; ``check_compatible`` refuses a task/memory preset or scene set
+that differs from the stored one; ``load_agent`` gives the agent and memory of the shared loop (eval,
+DAgger collection, the demo).
 """
 
 from __future__ import annotations
@@ -13,19 +16,88 @@ import dataclasses
 import os
 import subprocess
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Mapping
 
 import torch
 
-from nue.errors import CheckpointError
+from nue.errors import CheckpointError, NueError
 from nue.nerf.config import MemoryConfig
 from nue.nerf.online import OnlineNeRF
 from nue.policy import build_model
 from nue.policy.agent import PolicyAgent
 from nue.policy.config import ModelConfig
-from nue.sim.task import TaskConfig
+from nue.sim.task import CameraConfig, TaskConfig
 
 FORMAT = "nue-checkpoint/1"
+"""Format version of a checkpoint file."""
+
+
+@dataclass(frozen=True)
+class PolicyHeader:
+    """What a policy checkpoint says about itself besides its weights: how to rebuild and run the policy
+    (model and memory config) and what it was trained for and on (task preset, data, scenes, commit)."""
+
+    model: ModelConfig
+    """Architecture of the network (``model_config`` in the file)."""
+    task: str = ""
+    """Task preset name the policy was trained for ('' = not recorded); a run of another preset is refused."""
+    memory: MemoryConfig | None = None
+    """The online NeRF memory it was trained with (None = not recorded); its initial weights are stored apart."""
+    manifest_hash: str = ""
+    """:meth:`~nue.train.manifest.CollectionManifest.hash` of the training data."""
+    scenes: Mapping[str, str] = field(default_factory=dict)
+    """Scene name -> content hash of the training houses."""
+    git_commit: str = ""
+    """Commit the weights were trained at ('' outside a checkout)."""
+    task_config: Mapping[str, Any] = field(default_factory=dict)
+    """The task preset's values as stored (``dataclasses.asdict(TaskConfig)`` at training time; a record —
+    only ``task`` is checked)."""
+    train_config: Mapping[str, Any] = field(default_factory=dict)
+    """The training run's config (``TrainConfig`` fields and the resolved precision), as stored."""
+    data: Mapping[str, Any] = field(default_factory=dict)
+    """What the run trained on: episode and step counts, skipped files."""
+
+    @property
+    def name(self) -> str:
+        """The model preset's name (the method name in records when none is given)."""
+        return self.model.name
+
+    @classmethod
+    def of(cls, task: TaskConfig, memory: MemoryConfig, model: ModelConfig, scenes: Mapping[str, str],
+           manifest_hash: str = "", train_config: Mapping | None = None, data: Mapping | None = None) -> "PolicyHeader":
+        """The header of a policy being trained now (at this checkout's commit)."""
+        return cls(model=model, task=task.name, memory=memory, manifest_hash=manifest_hash, scenes=dict(scenes),
+                   git_commit=git_commit(), task_config=dataclasses.asdict(task), train_config=dict(train_config or {}),
+                   data=dict(data or {}))
+
+    def to_dict(self) -> dict:
+        """The header's entries of the checkpoint dict (``format`` is added by :func:`save_checkpoint`)."""
+        d: dict[str, Any] = {}
+        if self.task or self.task_config:
+            d["task"] = {**self.task_config, "name": self.task}
+        if self.memory is not None:
+            d["memory"] = self.memory.to_dict()
+        d.update(model_config=self.model.to_dict(), manifest_hash=self.manifest_hash, scenes=dict(self.scenes),
+                 git_commit=self.git_commit, train_config=dict(self.train_config), data=dict(self.data))
+        return d
+
+    @classmethod
+    def from_dict(cls, ckpt: Mapping[str, Any], path=None) -> "PolicyHeader":
+        """The header of a checkpoint dict (weights and training state are ignored); entries a checkpoint
+        lacks keep their defaults. :class:`CheckpointError` naming ``path`` if it is malformed."""
+        try:
+            task = dict(ckpt.get("task") or {})
+            memory = ckpt.get("memory")
+            return cls(model=ModelConfig.from_dict(ckpt["model_config"]), task=task.get("name", ""),
+                       memory=MemoryConfig.from_dict(memory) if memory is not None else None,
+                       manifest_hash=ckpt.get("manifest_hash", ""), scenes=dict(ckpt.get("scenes") or {}),
+                       git_commit=ckpt.get("git_commit", ""), task_config=task,
+                       train_config=dict(ckpt.get("train_config") or {}), data=dict(ckpt.get("data") or {}))
+        except (KeyError, TypeError, ValueError, NueError) as exc:
+            problem = exc.problem if isinstance(exc, NueError) else f"{type(exc).__name__}: {exc}"
+            raise CheckpointError(path, f"malformed checkpoint header ({problem})") from None
 
 
 def git_commit() -> str:
@@ -87,15 +159,26 @@ def _non_finite(state, prefix: str = "") -> str:
     return ""
 
 
-def load_policy(path, device="cpu"):
-    """(model in eval mode, checkpoint dict) from a checkpoint file."""
+def load_header(path) -> PolicyHeader:
+    """The :class:`PolicyHeader` of a checkpoint file (checked as :func:`load_checkpoint` does)."""
+    return PolicyHeader.from_dict(load_checkpoint(path), path)
+
+
+def load_policy(path, device="cpu") -> tuple[torch.nn.Module, PolicyHeader]:
+    """(model in eval mode, its header) from a checkpoint file."""
+    model, header, _ = _load_policy(path, device)
+    return model, header
+
+
+def _load_policy(path, device) -> tuple[torch.nn.Module, PolicyHeader, dict]:
     ckpt = load_checkpoint(path)
-    model = build_model(ModelConfig.from_dict(ckpt["model_config"]))
+    header = PolicyHeader.from_dict(ckpt, path)
+    model = build_model(header.model)
     try:
         model.load_state_dict(ckpt["model_state"])
-    except RuntimeError as exc:
+    except (KeyError, RuntimeError) as exc:
         raise CheckpointError(path, f"weights do not fit the stored model config ({exc})") from None
-    return model.to(device).eval(), ckpt
+    return model.to(device).eval(), header, ckpt
 
 
 def load_agent(checkpoint, task: TaskConfig, device: str | torch.device = "cpu", *, scenes: dict[str, str] | None = None,
@@ -107,41 +190,47 @@ def load_agent(checkpoint, task: TaskConfig, device: str | torch.device = "cpu",
     (the caller brings its own). ``greedy``: None = the task's rule (``task.greedy``). The agent's
     ``git_commit`` is the commit the weights were trained at.
     """
-    model, ckpt = load_policy(checkpoint, device)
-    check_compatible(ckpt, checkpoint, task=task, scenes=scenes)
+    model, header, ckpt = _load_policy(checkpoint, device)
+    check_compatible(header, checkpoint, task=task, scenes=scenes)
     nerf = None
     if memory or (memory is None and model.config.uses_memory_maps):
-        nerf = OnlineNeRF(MemoryConfig.from_dict(ckpt["memory"]), task.camera, init_state=ckpt["memory_init"], device=device)
+        nerf = _memory(ckpt, header, checkpoint, task.camera, device)
     agent = PolicyAgent(model, greedy=task.greedy if greedy is None else greedy, device=device,
-                        git_commit=ckpt.get("git_commit", ""))
+                        git_commit=header.git_commit)
     return agent, nerf
 
 
-def check_compatible(ckpt: dict, path, task=None, memory=None, scenes: dict[str, str] | None = None) -> None:
+def load_memory(checkpoint, camera: CameraConfig, device: str | torch.device = "cpu") -> OnlineNeRF:
+    """A checkpoint's online NeRF memory (its stored config and fixed initial weights) for ``camera``."""
+    ckpt = load_checkpoint(checkpoint)
+    return _memory(ckpt, PolicyHeader.from_dict(ckpt, checkpoint), checkpoint, camera, device)
+
+
+def _memory(ckpt: dict, header: PolicyHeader, path, camera: CameraConfig, device) -> OnlineNeRF:
+    if header.memory is None or "memory_init" not in ckpt:
+        raise CheckpointError(path, "holds no memory config and initial weights (needed for the memory maps)")
+    return OnlineNeRF(header.memory, camera, init_state=ckpt["memory_init"], device=device)
+
+
+def check_compatible(header: PolicyHeader, path, task: TaskConfig | None = None, memory: MemoryConfig | None = None,
+                     scenes: Mapping[str, str] | None = None) -> None:
     """Raise :class:`CheckpointError` if the task preset, memory config or a known scene's content
     differs from what the checkpoint was trained with (scenes absent from training are fine)."""
-    if task is not None and ckpt["task"]["name"] != task.name:
-        raise CheckpointError(path, f"trained for task preset {ckpt['task']['name']!r}, asked to run {task.name!r}")
-    if memory is not None and ckpt.get("memory") is not None and ckpt["memory"] != memory.to_dict():
-        diff = sorted(k for k in set(ckpt["memory"]) | set(memory.to_dict()) if ckpt["memory"].get(k) != memory.to_dict().get(k))
+    if task is not None and header.task != task.name:
+        raise CheckpointError(path, f"trained for task preset {header.task!r}, asked to run {task.name!r}")
+    if memory is not None and header.memory is not None and header.memory != memory:
+        trained, asked = header.memory.to_dict(), memory.to_dict()
+        diff = sorted(k for k in set(trained) | set(asked) if trained.get(k) != asked.get(k))
         raise CheckpointError(path, f"memory preset differs from the trained one in: {', '.join(diff)}")
     for name, h in (scenes or {}).items():
-        trained = ckpt.get("scenes", {}).get(name)
+        trained = header.scenes.get(name)
         if trained is not None and trained != h:
             raise CheckpointError(path, f"scene {name} has content {h}, but the policy was trained on content {trained}")
 
 
-def policy_meta(task, memory_cfg, model_cfg, scenes: dict[str, str], manifest_hash: str = "",
-                train_config: dict | None = None, data: dict | None = None) -> dict:
-    """Everything a checkpoint carries besides weights (see the module docstring)."""
-    return {
-        "task": dataclasses.asdict(task),
-        "memory": memory_cfg.to_dict(),
-        "memory_init": OnlineNeRF(memory_cfg, task.camera).initial_state(),
-        "model_config": model_cfg.to_dict(),
-        "manifest_hash": manifest_hash,
-        "scenes": dict(scenes),
-        "git_commit": git_commit(),
-        "train_config": train_config or {},
-        "data": data or {},
-    }
+def policy_meta(task: TaskConfig, memory_cfg: MemoryConfig, model_cfg: ModelConfig, scenes: Mapping[str, str],
+                manifest_hash: str = "", train_config: Mapping | None = None, data: Mapping | None = None) -> dict:
+    """Everything a checkpoint file carries besides the policy's weights and training state: the
+    :class:`PolicyHeader`'s entries and the memory's fixed initial weights (``memory_init``)."""
+    header = PolicyHeader.of(task, memory_cfg, model_cfg, scenes, manifest_hash, train_config, data)
+    return {**header.to_dict(), "memory_init": OnlineNeRF(memory_cfg, task.camera).initial_state()}

@@ -6,21 +6,22 @@ normalised by ``prepare_input``), ``i_u`` (T, 1, h, w) and ``i_cog`` (T, 64, h, 
 expert's ``action`` label and the ``executed`` action (T,) int8, ``goal_angle`` (T,) float32 and
 ``pose`` (T, 3) float32; per episode the goal photo at map and frame size (3, ., .) float16.
 Episodes are written by the driver as they finish (temporary file + rename); rerunning the same
-command skips finished episodes, so a killed collection resumes without duplicates.
+command skips finished episodes, so a killed collection resumes without duplicates. What the folder
+holds is described by its manifest (:mod:`nue.train.manifest`); each episode travels to its worker as
+a :class:`~nue.train.collect_job.CollectJob`.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from nue.errors import DataError
 from nue.jobs import Job, episode_seed, run_jobs, worker_cached
-from nue.nerf.config import get_memory
+from nue.nerf.config import MemoryConfig, get_memory
 from nue.nerf.online import OnlineNeRF
 from nue.policy.agent import EXPERT_KINDS, ExpertAgent, MixedAgent, NoisyAgent
 from nue.policy.config import get_model_config
@@ -33,9 +34,10 @@ from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import Episode, load_episodes, save_episodes
 from nue.sim.task import get_task
 from nue.train.checkpoint import load_agent
+from nue.train.collect_job import AgentSpec, CollectJob
 from nue.train.episode_file import read_header, write_episode_file
-
-FORMAT = "nue-demos/1"
+from nue.train.manifest import CollectionManifest, DataLayout, read_manifest, write_manifest
+from nue.train.manifest import data_layout  # noqa: F401  (re-exported: nue.train.dataset reads it here)
 
 
 @dataclass(frozen=True)
@@ -44,9 +46,8 @@ class CollectConfig:
 
     task: str = "paper"
     """Task preset."""
-    memory: str | dict = "fast"
-    """Memory (NeRF) preset name, or a full config dict (``MemoryConfig.to_dict()``, e.g. a manifest's), run
-    online exactly as at test time."""
+    memory: str | MemoryConfig = "fast"
+    """Memory (NeRF) preset name, or a full config (e.g. a manifest's), run online exactly as at test time."""
     model: str = "nue"
     """Model preset whose input layout (frame size, map size, depth scale) the data is stored in."""
     split: str = "train"
@@ -66,9 +67,9 @@ class CollectConfig:
     """Seed of episode sampling and of each episode's memory / action sampling."""
     device: str = "cpu"
     """Device of the NeRF memory in the workers."""
-    agent: tuple = (("kind", "expert"),)
-    """Who drives: ``expert``, or ``dagger`` with ``checkpoint``, ``beta`` and ``expert_steps_from`` (the
-    expert collection whose step counts cap policy control at ``max_factor`` x; the expert finishes)."""
+    agent: AgentSpec = AgentSpec()
+    """Who drives: the expert, or DAgger's mix (``AgentSpec.dagger``: a checkpoint, ``beta`` and the expert
+    collection whose step counts cap policy control at ``max_factor`` x; the expert finishes)."""
     memory_lag: int = 0
     """Override the memory's ``lag`` (frames join the NeRF this many steps late); 0 = keep the preset's."""
     expert: str = "geodesic"
@@ -85,14 +86,9 @@ class CollectConfig:
             raise DataError(None, f"noise must be in [0, 1), got {self.noise}")
 
 
-def data_layout(model_cfg) -> dict:
-    """The input layout stored in episode files (checked against a model config at training time)."""
-    return {"frame_size": list(model_cfg.frame_size), "map_size": list(model_cfg.map_size),
-            "max_depth": model_cfg.max_depth, "cog_channels": model_cfg.cog_channels}
-
-
-def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], dict]:
-    """Houses, episodes (generated once, stored under ``episodes/``) and the manifest of a collection."""
+def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], CollectionManifest]:
+    """Houses, episodes (generated once, stored under ``episodes/``) and the manifest of a collection;
+    each job's payload is a :class:`CollectJob`."""
     task = get_task(cfg.task)
     model_cfg = get_model_config(cfg.model).for_task(task)
     memory = get_memory(cfg.memory)
@@ -106,26 +102,11 @@ def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], d
     else:
         indices = cfg.houses or tuple(range(len(SPLITS[cfg.split])))
         scenes = [Scene.load(ensure_house(cfg.split, i, scenes_root)) for i in indices]
-    manifest = {
-        "format": FORMAT,
-        "task": task.name,
-        "memory": memory.to_dict(),
-        "model_layout": data_layout(model_cfg),
-        "split": cfg.split,
-        "scenes": {s.name: s.content_hash for s in scenes},
-        "episodes_per_bin": cfg.episodes_per_bin,
-        "heldout_per_bin": cfg.heldout_per_bin,
-        "seed": cfg.seed,
-    }
-    if cfg.subsample_per_bin:
-        manifest["subsample_per_bin"] = cfg.subsample_per_bin
-    if dict(cfg.agent)["kind"] != "expert":
-        manifest["agent"] = dict(cfg.agent)
-    if cfg.expert != "geodesic":  # recorded only when not the default, so older manifests stay valid
-        manifest["expert"] = cfg.expert
-    if cfg.noise:
-        manifest["noise"] = cfg.noise
-    agent = {**dict(cfg.agent), "expert": cfg.expert, "noise": cfg.noise}
+    manifest = CollectionManifest(
+        task=task.name, memory=memory, model_layout=DataLayout.of(model_cfg), split=cfg.split,
+        scenes={s.name: s.content_hash for s in scenes}, episodes_per_bin=cfg.episodes_per_bin,
+        heldout_per_bin=cfg.heldout_per_bin, seed=cfg.seed, subsample_per_bin=cfg.subsample_per_bin, agent=cfg.agent,
+        expert=cfg.expert, noise=cfg.noise)
     jobs = []
     for s in scenes:
         for part, per_bin, seed in (("train", cfg.episodes_per_bin, cfg.seed), ("heldout", cfg.heldout_per_bin, cfg.seed + 7919)):
@@ -135,58 +116,37 @@ def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], d
             if part == "train" and cfg.subsample_per_bin:
                 episodes = _first_per_bin(episodes, cfg.subsample_per_bin)
             for ep in episodes:
-                key = f"{part}/{s.name}/{ep['episode_id']}"
-                spec = dict(agent)
-                if spec["kind"] == "dagger":
-                    expert_file = episode_path(Path(spec["expert_steps_from"]), key)
-                    spec["expert_steps"] = read_header(expert_file)[0]["meta"]["steps"] if expert_file.is_file() else 0
-                jobs.append(Job(key, {
-                    "scene": str(s.path), "episode": ep, "task": task.name, "memory": manifest["memory"],
-                    "model": cfg.model, "seed": episode_seed(cfg.seed, s.name, key), "device": cfg.device,
-                    "agent": spec,
-                }))
+                key = f"{part}/{s.name}/{ep.episode_id}"
+                expert_steps = 0
+                if cfg.agent.kind == "dagger":
+                    expert_file = episode_path(Path(cfg.agent.expert_steps_from), key)
+                    expert_steps = read_header(expert_file)[0]["meta"]["steps"] if expert_file.is_file() else 0
+                jobs.append(Job(key, CollectJob(
+                    scene=str(s.path), episode=ep, task=task.name, memory=memory, model=cfg.model,
+                    seed=episode_seed(cfg.seed, s.name, key), device=cfg.device, agent=cfg.agent, expert=cfg.expert,
+                    noise=cfg.noise, expert_steps=expert_steps)))
     return jobs, manifest
 
 
-def _first_per_bin(episodes: list[dict], k: int) -> list[dict]:
+def _first_per_bin(episodes: list[Episode], k: int) -> list[Episode]:
     """The first ``k`` episodes of each difficulty bin, in the original order."""
     seen: dict[str, int] = {}
     kept = []
     for ep in episodes:
-        seen[ep["difficulty"]] = seen.get(ep["difficulty"], 0) + 1
-        if seen[ep["difficulty"]] <= k:
+        seen[ep.difficulty] = seen.get(ep.difficulty, 0) + 1
+        if seen[ep.difficulty] <= k:
             kept.append(ep)
     return kept
 
 
-def _episodes_for(scene, task, per_bin: int, seed: int, scenes_root: Path) -> list[dict]:
+def _episodes_for(scene, task, per_bin: int, seed: int, scenes_root: Path) -> list[Episode]:
     path = scenes_root / "episodes" / f"{scene.name}_{task.name}_s{seed}_n{per_bin}.json"
     if path.is_file():
         eps = load_episodes(path, scene, task)
     else:
         eps = generate_episodes(scene, task, EpisodeGenConfig(per_bin=per_bin), seed=seed)
         save_episodes(path, eps, task)
-    return [asdict(e) for e in eps]
-
-
-def manifest_hash(manifest: dict) -> str:
-    """sha256 (16 hex digits) of the manifest's canonical JSON."""
-    return hashlib.sha256(json.dumps(manifest, sort_keys=True).encode()).hexdigest()[:16]
-
-
-def write_manifest(out: Path, manifest: dict) -> None:
-    """Create ``out/manifest.json``, or check that an existing one describes the same collection."""
-    path = out / "manifest.json"
-    if path.is_file():
-        old = json.loads(path.read_text())
-        if old != manifest:
-            diff = sorted(k for k in set(old) | set(manifest) if old.get(k) != manifest.get(k))
-            raise DataError(path, f"holds a different collection (differs in {', '.join(diff)}); use another --out")
-        return
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
-    tmp.replace(path)
+    return list(eps)
 
 
 def episode_path(out: Path, key: str) -> Path:
@@ -230,49 +190,47 @@ def summarize_collection(out: Path, jobs) -> dict:
         succ += bool(header["meta"]["success"])
         total += episode_path(out, job.key).stat().st_size
     summary = {"episodes": len(jobs), "steps": steps, "bytes": total, "bytes_per_step": total / max(steps, 1),
-               "expert_success_rate": succ / max(len(jobs), 1), "manifest_hash": manifest_hash(json.loads((out / "manifest.json").read_text()))}
+               "expert_success_rate": succ / max(len(jobs), 1), "manifest_hash": read_manifest(out).hash()}
     (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     return summary
 
 
 # ------------------------------------------------------------------------------------------- worker
-def _worker_objects(payload):
+def _worker_objects(job: CollectJob):
     """The job's env and memory (the manifest's config, its own initial weights), built once per worker."""
-    env = worker_cached(("env", payload["scene"], payload["task"]), lambda: make_env(payload["scene"], payload["task"]))
-    memory = worker_cached(("memory", json.dumps(payload["memory"], sort_keys=True), payload["device"]),
-                           lambda: OnlineNeRF(payload["memory"], env.task.camera, device=payload["device"]))
+    env = worker_cached(("env", job.scene, job.task), lambda: make_env(job.scene, job.task))
+    memory = worker_cached(("memory", job.memory, job.device),
+                           lambda: OnlineNeRF(job.memory, env.task.camera, device=job.device))
     return env, memory
 
 
 def collect_episode(job: Job):
     """Worker: run one episode with the memory online; return (arrays, meta) for its file."""
-    p = job.payload
+    p: CollectJob = job.payload
     env, memory = _worker_objects(p)
-    episode = Episode.from_dict(p["episode"])
-    model_cfg = get_model_config(p["model"]).for_task(env.task)
-    agent = _make_agent(p["agent"], env)
+    episode = p.episode
+    model_cfg = get_model_config(p.model).for_task(env.task)
+    agent = make_agent(p, env)
     rec = DemoRecorder(model_cfg, agent)
-    record = run_episode(env, agent, episode=episode, memory=memory, seed=p["seed"], on_step=rec, method=p["agent"]["kind"])
+    record = run_episode(env, agent, episode=episode, memory=memory, seed=p.seed, on_step=rec, method=p.agent.kind)
     meta = {"key": job.key, "scene": env.scene.name, "scene_hash": env.scene.content_hash,
             "episode_id": episode.episode_id, "difficulty": episode.difficulty, "success": record.success,
-            "steps": record.steps, "seed": p["seed"], "agent": p["agent"], "record": record.to_dict()}
+            "steps": record.steps, "seed": p.seed, "agent": p.agent_meta(), "record": record.to_dict()}
     return rec.arrays(), meta
 
 
-def _make_agent(spec: dict, env):
+def make_agent(job: CollectJob, env):
     """The driving agent of a collection job: the expert or DAgger's mix, wrapped in noise injection."""
-    kind = spec.get("expert", "geodesic")
-    expert = ExpertAgent(kind=kind)
-    if spec["kind"] == "expert":
+    expert = ExpertAgent(kind=job.expert)
+    spec = job.agent
+    if spec.kind == "expert":
         agent = expert
-    elif spec["kind"] == "dagger":
-        policy, _ = worker_cached(("policy", spec["checkpoint"], env.task.name),
-                                  lambda: load_agent(spec["checkpoint"], env.task, memory=False, greedy=False))
-        limit = int(spec.get("max_factor", 3) * spec["expert_steps"]) if spec.get("expert_steps") else None
-        agent = MixedAgent(policy, expert, spec["beta"], policy_steps=limit)
     else:
-        raise ValueError(f"unknown agent kind {spec['kind']!r}")
-    return NoisyAgent(agent, spec["noise"], env.task.actions) if spec.get("noise") else agent
+        policy, _ = worker_cached(("policy", spec.checkpoint, env.task.name),
+                                  lambda: load_agent(spec.checkpoint, env.task, memory=False, greedy=False))
+        limit = int(spec.max_factor * job.expert_steps) if job.expert_steps else None
+        agent = MixedAgent(policy, expert, spec.beta, policy_steps=limit)
+    return NoisyAgent(agent, job.noise, env.task.actions) if job.noise else agent
 
 
 @dataclass

@@ -8,7 +8,7 @@ control at ``max_factor`` x the expert's step count for the episode (then the ex
 and continues training from the previous round's weights on all data so far. With a time budget
 per round, the rollouts count against it: retraining gets what the collection left, so DAgger and
 plain behaviour cloning can be compared at equal compute. Each round's collection and run folder
-are resumable like ``nue collect`` and ``nue train``.
+are resumable like ``nue collect`` and ``nue train``. ``nue dagger`` runs it.
 """
 
 from __future__ import annotations
@@ -22,6 +22,8 @@ from pathlib import Path
 from nue.errors import DataError
 from nue.train.bc import TrainConfig, TrainResult, train
 from nue.train.collect import CollectConfig, collect
+from nue.train.collect_job import AgentSpec
+from nue.train.manifest import CollectionManifest
 
 
 @dataclass(frozen=True)
@@ -61,8 +63,7 @@ def run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: Dagge
     for r in range(1, dagger.rounds + 1):
         t0 = time.perf_counter()
         beta = dagger.beta0**r
-        agent = (("kind", "dagger"), ("checkpoint", str(best)), ("beta", beta),
-                 ("expert_steps_from", expert_data), ("max_factor", dagger.max_factor))
+        agent = AgentSpec.dagger(best, beta, expert_steps_from=expert_data, max_factor=dagger.max_factor)
         data_dir = out / f"data_r{r}"
         summary = collect(data_dir, dataclasses.replace(collect_cfg, agent=agent, heldout_per_bin=0,
                                                         subsample_per_bin=dagger.episodes_per_bin),
@@ -82,16 +83,17 @@ def run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: Dagge
     return rounds
 
 
-def collect_config_from_manifest(manifest: dict, scene_dirs=(), device: str = "cpu") -> CollectConfig:
-    """The collection config that reproduces an expert collection's training episodes."""
-    names = list(manifest["scenes"])
+def collect_config_from_manifest(manifest: CollectionManifest, scene_dirs=(), device: str = "cpu",
+                                 where="manifest.json") -> CollectConfig:
+    """The collection config that reproduces an expert collection's training episodes (``where`` names the
+    manifest in errors)."""
     houses: tuple[int, ...] = ()
     if not scene_dirs:
-        prefix = f"{manifest['split']}_"
-        if not all(n.startswith(prefix) and n[len(prefix):].isdigit() for n in names):
-            raise DataError("manifest.json", "scenes are not generated houses: pass their folders with --scene")
-        houses = tuple(int(n[len(prefix):]) for n in names)
-    return CollectConfig(task=manifest["task"], memory=manifest["memory"], split=manifest["split"],
+        prefix = f"{manifest.split}_"
+        if not all(n.startswith(prefix) and n[len(prefix):].isdigit() for n in manifest.scenes):
+            raise DataError(where, "scenes are not generated houses: pass their folders with --scene")
+        houses = tuple(int(n[len(prefix):]) for n in manifest.scenes)
+    return CollectConfig(task=manifest.task, memory=manifest.memory, split=manifest.split,
                          houses=houses, scene_dirs=tuple(str(d) for d in scene_dirs),
-                         episodes_per_bin=manifest["episodes_per_bin"], heldout_per_bin=0, seed=manifest["seed"],
-                         device=device, expert=manifest.get("expert", "geodesic"), noise=manifest.get("noise", 0.0))
+                         episodes_per_bin=manifest.episodes_per_bin, heldout_per_bin=0, seed=manifest.seed,
+                         device=device, expert=manifest.expert, noise=manifest.noise)

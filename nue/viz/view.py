@@ -167,15 +167,13 @@ def pick_episode(episodes: list, which: str, where) -> object:
 
 def _memory_from(checkpoint: str | None, camera):
     """The online NeRF memory: a checkpoint's preset and initial weights, else the ``fast`` preset."""
-    from nue.nerf.config import MemoryConfig
     from nue.nerf.online import OnlineNeRF
 
     if checkpoint is None:
         return OnlineNeRF("fast", camera)
-    from nue.train.checkpoint import load_checkpoint
+    from nue.train.checkpoint import load_memory
 
-    ckpt = load_checkpoint(checkpoint)
-    return OnlineNeRF(MemoryConfig.from_dict(ckpt["memory"]), camera, init_state=ckpt["memory_init"])
+    return load_memory(checkpoint, camera)
 
 
 def run_live(viewer: Viewer, src: LiveSource) -> EpisodeRecord:
@@ -195,10 +193,10 @@ def run_live(viewer: Viewer, src: LiveSource) -> EpisodeRecord:
 
         agent, memory, method = ExpertAgent(), _memory_from(None, env.task.camera), "expert"
     else:
-        from nue.train.checkpoint import load_agent, load_checkpoint
+        from nue.train.checkpoint import load_agent, load_header
 
         agent, memory = load_agent(src.checkpoint, env.task, scenes={scene.name: scene.content_hash})
-        method = load_checkpoint(src.checkpoint)["model_config"]["name"]
+        method = load_header(src.checkpoint).name
     log: list[EpisodeLogger] = []
 
     def on_step(s) -> None:

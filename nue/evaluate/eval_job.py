@@ -1,0 +1,85 @@
+"""What one ``nue eval`` episode job carries to its worker (:class:`EvalJob`) and the settings stored in
+its record and compared on resume (:class:`RunSettings`); frozen dataclasses, pickled as they are.
+
+The only dict form is the record's ``extra["settings"]`` (:meth:`RunSettings.to_dict`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+from nue.sim.episodes import Episode
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """Everything that changes an episode's record: stored in it (``extra['settings']``) and compared when
+    a run resumes. The device is left out (it does not change what a policy does, only how fast)."""
+
+    agent: str
+    """The checkpoint's content hash (:func:`nue.evaluate.runner.file_sha256`), or the expert method's name."""
+    task: str
+    """Task preset name."""
+    max_steps: int
+    """Step limit override (0 = the preset's)."""
+    seed: int
+    """Base seed of the run."""
+    swap_maps: bool
+    """Maps from another episode of the house (control)."""
+    coverage: bool
+    """Seen floor area recorded after every step."""
+    episode: str
+    """sha256 (16 hex digits) of the episode's canonical JSON (:meth:`episode_digest`)."""
+    scene: str
+    """The house's content hash."""
+
+    @staticmethod
+    def episode_digest(episode: Episode) -> str:
+        """sha256 (16 hex digits) of ``dataclasses.asdict(episode)`` as canonical JSON."""
+        return hashlib.sha256(json.dumps(dataclasses.asdict(episode), sort_keys=True).encode()).hexdigest()[:16]
+
+    def to_dict(self) -> dict:
+        """The record's ``extra['settings']``."""
+        return dataclasses.asdict(self)
+
+    def differences(self, stored: Mapping[str, Any] | None) -> list[str]:
+        """Sorted names of the settings in which a record's stored ``extra['settings']`` differs from these
+        (``["settings (an older record)"]`` for a record made before settings were stored)."""
+        if stored is None:
+            return ["settings (an older record)"]
+        now = self.to_dict()
+        return sorted(k for k in now if stored.get(k) != now[k])
+
+
+@dataclass(frozen=True)
+class EvalJob:
+    """One episode of one method: everything its worker needs (``jobs.Job.payload``)."""
+
+    method: str
+    """Method name written to the record (``+swap`` appended for the swapped-maps control)."""
+    checkpoint: str | None
+    """Policy checkpoint path; None for an expert."""
+    expert: str
+    """Which expert runs when ``checkpoint`` is None (``geodesic`` or ``explore``); '' for a policy."""
+    scene: str
+    """Scene folder."""
+    episode: Episode
+    """The episode to run."""
+    other: Episode | None
+    """Swapped-maps control: the episode of the same house whose memory maps the policy is fed; else None."""
+    task: str
+    """Task preset name."""
+    seed: int
+    """The episode's own seed (memory, action sampling)."""
+    device: str
+    """Device of policy and memory."""
+    coverage: bool
+    """Record the seen floor area after every step."""
+    max_steps: int
+    """Step limit override (0 = the preset's)."""
+    settings: RunSettings
+    """What the record stores to be compared on resume."""
