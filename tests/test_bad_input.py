@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -484,3 +486,41 @@ def test_typed_errors_survive_a_worker_process_boundary():
                 CheckpointError(None, "no file"), InvalidEpisodesError("eps.json", [("e1", "bad"), ("e2", "worse")])):
         back = pickle.loads(pickle.dumps(exc))
         assert type(back) is type(exc) and str(back) == str(exc) and back.where == exc.where
+
+
+# --- the installed command ---------------------------------------------------------------------
+def _console_script() -> list[str]:
+    """The ``nue`` console script of this environment (``python -m nue.cli`` where it is not installed)."""
+    script = Path(sys.executable).with_name("nue")
+    return [str(script)] if script.is_file() else [sys.executable, "-m", "nue.cli"]
+
+
+def _process_cases(tmp_path) -> dict:
+    import gzip
+
+    habitat = tmp_path / "box_room.json.gz"
+    habitat.write_bytes(gzip.compress(json.dumps({"episodes": [_habitat(goals=[])]}).encode()))
+    a_file = tmp_path / "a_file"
+    a_file.write_text("keep me\n")
+    return {  # args and what the line names (commands that import little: a process costs ~1 s each)
+        "usage-not-an-int": (["eval", "--workers", "abc", "--out", "r.jsonl"], "nue eval: Invalid value for '--workers'"),
+        "usage-unknown-command": (["evaluate", "--out", "r.jsonl"], "nue: No such command 'evaluate'"),
+        "habitat-entry": (["episodes", "convert", habitat, "--out", "o.json", "--scene", BOX_ROOM],
+                          f"{habitat}: episode 7: goals"),
+        "output-is-a-file": (["scenes", "generate", "--split", "val", "--out", a_file], f"{a_file}: is a file"),
+    }
+
+
+@pytest.mark.parametrize("case", ["usage-not-an-int", "usage-unknown-command", "habitat-entry", "output-is-a-file"])
+def test_the_console_script_prints_the_same_line(capsys, tmp_path, monkeypatch, case):
+    """A real ``nue`` process gives the exit status and the one line of the in-process run, and neither
+    writes anything (relative outputs would land in the working folder, ``tmp_path`` for both)."""
+    args, named = _process_cases(tmp_path)[case]
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*")}
+    monkeypatch.chdir(tmp_path)
+    line = assert_refused(capsys, args, named)
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    res = subprocess.run([*_console_script(), *map(str, args)], capture_output=True, text=True, env=env,
+                         cwd=tmp_path, timeout=120)
+    assert (res.returncode, res.stderr.strip(), res.stdout) == (2, line, ""), res.stderr
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*")} == before
