@@ -215,12 +215,13 @@ def report_cmd(
     import platform
 
     from nue.evaluate.report import load_records, render_results_md, write_report
+    from nue.viz.coverage import write_coverage_figure
 
     check_output_dir(out, "the report folder")
     if results_md:
         check_output_file(results_md)
     recs = load_records(*records)
-    paths = write_report(recs, out, task=task)
+    paths = {**write_report(recs, out, task=task), **write_coverage_figure(recs, out)}
     typer.echo((out / "table.md").read_text() if (out / "table.md").is_file() else "")
     if results_md:
         meta_path = results_md.parent / f"{results_md.stem}.meta.json"

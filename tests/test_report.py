@@ -1,4 +1,5 @@
-"""Report: Table I cells by hand, Wilson intervals, paired bootstrap, paper numbers, coverage, RESULTS.md regeneration."""
+"""Report: Table I cells by hand, Wilson intervals, paired bootstrap, paper numbers, coverage (curves; the figure
+from nue.viz.coverage), RESULTS.md regeneration."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from nue.evaluate import coverage as cov
 from nue.evaluate import report as R
 from nue.evaluate.metrics import EpisodeRecord
 from nue.sim.task import CameraConfig
+from nue.viz.coverage import write_coverage_figure
 
 Z = 1.959963984540054
 
@@ -175,7 +177,7 @@ def test_seen_floor_cells_flat_floor(box_nav):
 def test_write_report_and_results_md_regenerate(tmp_path):
     recs = hand_records() + [rec(i, d, i % 2 == 0, method=m, coverage=[0.5 * (k + 1) for k in range(10 + i)])
                              for m in ("fr", "abl_fu") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
-    paths = R.write_report(recs, tmp_path / "rep")
+    paths = {**R.write_report(recs, tmp_path / "rep"), **write_coverage_figure(recs, tmp_path / "rep")}
     assert sorted(paths) == ["coverage.png", "table.csv", "table.md", "table.tex"]
     assert all(p.is_file() and p.stat().st_size > 0 for p in paths.values())
     assert paths["coverage.png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -4,7 +4,7 @@ A floor cell counts as *seen* once the depth camera sees the floor there (not oc
 ``max_range`` metres of the robot; see :func:`seen_floor_cells`, defined in :mod:`nue.sim.seen`). The
 runner accumulates the union of seen cells over an episode and stores the area after every step,
 in m², as ``record.extra["coverage"]``; :func:`mean_coverage_curves` averages those curves per
-method and :func:`plot_coverage` draws them.
+method (:func:`nue.viz.coverage.plot_coverage` draws them).
 
 Typical use inside an ``on_step`` callback (or with :class:`CoverageTracker`)::
 
@@ -15,7 +15,6 @@ Typical use inside an ``on_step`` callback (or with :class:`CoverageTracker`)::
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
@@ -26,8 +25,7 @@ from nue.sim.task import CameraConfig
 
 __all__ = [  # the per-frame geometry lives in nue.sim.seen (the exploring expert uses it too); re-exported
     "COVERAGE_KEY", "CoverageConfig", "CoverageTracker", "GridLike", "cell_area", "coverage_curve",
-    "format_coverage_markdown", "mean_coverage_curves", "pad_curves", "plot_coverage", "seen_floor_cells",
-    "seen_obstacle_cells",
+    "format_coverage_markdown", "mean_coverage_curves", "pad_curves", "seen_floor_cells", "seen_obstacle_cells",
 ]
 
 COVERAGE_KEY = "coverage"
@@ -121,29 +119,3 @@ def format_coverage_markdown(curves: Mapping[str, np.ndarray], labels: Mapping[s
               for k, c in curves.items()]
     return "\n".join(lines) + "\n"
 
-
-def plot_coverage(curves: Mapping[str, np.ndarray], path, labels: Mapping[str, str] | None = None,
-                  title: str = "Exploration coverage") -> Path:
-    """Save a PNG of seen floor area (m²) vs step, one line per method (``curves``: name -> (L,))."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
-    for name, c in curves.items():
-        ax.plot(np.arange(1, len(c) + 1), c, lw=1.6, label=(labels or {}).get(name, name))
-    if curves:
-        ax.legend(fontsize=8, loc="lower right")
-    else:
-        ax.text(0.5, 0.5, "no coverage recorded", ha="center", va="center", transform=ax.transAxes)
-    ax.set_xlabel("step")
-    ax.set_ylabel("seen floor area (m²)")
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path

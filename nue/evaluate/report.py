@@ -1,5 +1,5 @@
 """Evaluation report: Table I from episode records as Markdown / CSV / LaTeX next to the paper's numbers,
-paired-bootstrap differences to NUE, the coverage plot, and the text of RESULTS.md.
+paired-bootstrap differences to NUE, the coverage curves, and the text of RESULTS.md.
 
 * Table data (rows, cells, SR with its 95% Wilson score interval, the paper's numbers):
   :mod:`nue.evaluate.table`; the statistics: :mod:`nue.evaluate.stats`.
@@ -7,8 +7,9 @@ paired-bootstrap differences to NUE, the coverage plot, and the text of RESULTS.
   (matched on (scene, episode_id); repeated runs of a key are averaged), their mean and the 95%
   percentile interval of 10,000 paired-bootstrap resamples (``numpy.random.default_rng(0)`` per
   comparison). The episode count resolves the ordering when the interval excludes 0.
-* ``write_report(records, out_dir)`` -> table.md, table.csv, table.tex, coverage.png;
-  ``render_results_md(records, meta)`` -> RESULTS.md text, a pure function of its inputs.
+* ``write_report(records, out_dir)`` -> table.md, table.csv, table.tex (the coverage figure is
+  :func:`nue.viz.coverage.write_coverage_figure`'s); ``render_results_md(records, meta)`` -> RESULTS.md
+  text, a pure function of its inputs.
 """
 
 from __future__ import annotations
@@ -248,8 +249,8 @@ def closed_loop_markdown(records: Sequence[EpisodeRecord], task: str = "paper") 
 
 
 def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = True, task: str = "paper") -> dict[str, Path]:
-    """Write ``table.md`` (table, counts, paired differences, closed-loop diagnostics), ``table.csv``,
-    ``table.tex`` and ``coverage.png``.
+    """Write ``table.md`` (table, counts, paired differences, closed-loop diagnostics), ``table.csv`` and
+    ``table.tex``.
 
     Returns ``{name: path}``. ``reference``: interleave the paper's rows; ``task``: the preset of the action ids.
     """
@@ -264,12 +265,11 @@ def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = Tr
     paths["table.md"].write_text(md)
     paths["table.csv"].write_text(format_csv(rows, paper))
     paths["table.tex"].write_text(format_latex(rows, paper))
-    curves = _coverage_curves(records)
-    paths["coverage.png"] = cov.plot_coverage(curves, out / "coverage.png", {k: method_label(k) for k in curves})
     return paths
 
 
-def _coverage_curves(records: Sequence[EpisodeRecord]) -> dict[str, np.ndarray]:
+def coverage_curves(records: Sequence[EpisodeRecord]) -> dict[str, np.ndarray]:
+    """Mean seen-area-vs-step curve (m²) per method of the table (canonical names, in table order)."""
     keys = order_methods({canonical_method(r.method) for r in records})
     return cov.mean_coverage_curves(records, keys, method_of=lambda r: canonical_method(r.method))
 
@@ -315,7 +315,7 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
                      "(matched on scene and episode id) of its result minus NUE's, with a 95% paired-bootstrap "
                      "interval (10,000 resamples, seed 0). The episode count resolves the ordering when the "
                      f"interval excludes 0.\n\n{format_paired_markdown(diffs)}")
-    curves = _coverage_curves(records)
+    curves = coverage_curves(records)
     if curves:
         parts.append("## Exploration coverage (mean seen floor area, m²)\n\nEpisodes that ended keep their final "
                      f"area.\n\n{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
