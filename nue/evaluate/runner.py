@@ -24,7 +24,7 @@ from nue.evaluate.eval_job import EvalJob, RunSettings
 from nue.jobs import Job, episode_seed, run_jobs, worker_cached
 from nue.policy.agent import ExpertAgent
 from nue.rollout import run_episode
-from nue.scene.generator import ensure_house
+from nue.scene.generator import SPLITS, ensure_house
 from nue.scene.navgrid import NavGrid
 from nue.scene.scene import Scene
 from nue.sim.env import make_env
@@ -46,7 +46,8 @@ class EvalConfig:
     scenes_root: str = "data/scenes"
     """Where the houses are (generated from their fixed seeds if missing)."""
     split: str = "val"
-    """House split of the episode files (houses are regenerated from this split's seeds)."""
+    """House split of episode files whose name does not say it (a file ``<split>_<NN>.json`` of a known split
+    is that split's house NN); houses are regenerated from their split's seeds."""
     task: str = "paper"
     """Task preset; a checkpoint trained for another preset is refused."""
     seed: int = 0
@@ -103,8 +104,8 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
     for f in files:
         name = f.name.removesuffix(".gz").removesuffix(".json")
         try:
-            index = int(name.rsplit("_", 1)[1])
-            folder = ensure_house(cfg.split, index, cfg.scenes_root)
+            split, index = name.rsplit("_", 1)  # <split>_<NN>: a generated house of that split
+            folder = ensure_house(split if split in SPLITS else cfg.split, int(index), cfg.scenes_root)
         except (ValueError, IndexError):
             folder = Path(cfg.scenes_root) / name
         scene = Scene.load(folder)

@@ -9,6 +9,7 @@ Euclidean, so the goal region must be one open area), or when the goal photo's m
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import zlib
 from dataclasses import dataclass
@@ -78,6 +79,39 @@ def generate_episodes(
                 episodes.append(ep)
                 made += 1
     return episodes
+
+
+def extend_episodes(
+    base: list[Episode],
+    scene: Scene,
+    task: TaskConfig | str = "paper",
+    config: EpisodeGenConfig = EpisodeGenConfig(),
+    seed: int = 1,
+    navgrid: NavGrid | None = None,
+    renderer=None,
+    bins: tuple[str, ...] | None = None,
+) -> list[Episode]:
+    """``base`` unchanged, then ``config.per_bin`` new episodes per bin drawn with ``seed`` (use a seed other
+    than base's), whose ids continue each bin's numbering (``easy_002`` after ``easy_000``, ``easy_001``).
+
+    A larger fixed set that starts with a smaller one: its first episodes of every file are the smaller
+    set, with the same ids, so each of them gets the same per-episode seed in an evaluation.
+    """
+    new = generate_episodes(scene, task, config, seed=seed, navgrid=navgrid, renderer=renderer, bins=bins)
+    taken = {e.episode_id for e in base}
+    counts: dict[str, int] = {}
+    for e in base:
+        name = e.episode_id.rsplit("_", 1)[0]
+        counts[name] = counts.get(name, 0) + 1
+    out = list(base)
+    for e in new:
+        name = e.episode_id.rsplit("_", 1)[0]
+        episode_id = f"{name}_{counts.get(name, 0):03d}"
+        counts[name] = counts.get(name, 0) + 1
+        if episode_id in taken:
+            raise EpisodeGenerationError(scene.path, f"cannot extend: episode id {episode_id!r} is taken")
+        out.append(dataclasses.replace(e, episode_id=episode_id))
+    return out
 
 
 def _try_one(nav, task, config, rng, centres, lo, hi, renderer, floor_z, scene, episode_id):
