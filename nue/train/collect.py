@@ -1,8 +1,9 @@
 """``nue collect``: expert (or DAgger) episodes in the training houses with the online NeRF memory
 running exactly as at test time; one checksummed, memory-mappable file per episode plus a manifest.
 
-Per step an episode file holds what the policy consumes: ``rgbd`` (T, 4, fh, fw) float16 (already
-normalised by ``prepare_input``), ``i_u`` (T, 1, h, w) and ``i_cog`` (T, 64, h, w) float16, the
+Per step an episode file holds what the policy consumes: ``rgbd`` (T, 4, fh, fw) (already normalised by
+``prepare_input``; 8-bit codes), ``i_u`` (T, 1, h, w) float16 and ``i_cog`` (T, 64, h, w) (4-bit codes) —
+the compact storage of :class:`~nue.train.compact.StepStorage`, older collections hold float16 — the
 expert's ``action`` label and the ``executed`` action (T,) int8, ``goal_angle`` (T,) float32 and
 ``pose`` (T, 3) float32; per episode the goal photo at map and frame size (3, ., .) float16.
 Episodes are written by the driver as they finish (temporary file + rename); rerunning the same
@@ -35,6 +36,7 @@ from nue.sim.episodes import Episode, load_episodes, save_episodes
 from nue.sim.task import get_task
 from nue.train.checkpoint import load_agent
 from nue.train.collect_job import AgentSpec, CollectJob
+from nue.train.compact import QuantizedArray, StepStorage
 from nue.train.episode_file import read_header, write_episode_file
 from nue.train.manifest import CollectionManifest, DataLayout, read_manifest, write_manifest
 from nue.train.manifest import data_layout  # noqa: F401  (re-exported: nue.train.dataset reads it here)
@@ -239,6 +241,8 @@ class DemoRecorder:
 
     config: object
     agent: object
+    storage: StepStorage = StepStorage()
+    """How the per-step arrays are stored (compact by default)."""
     steps: list = field(default_factory=list)
     goal: dict | None = None
 
@@ -248,9 +252,9 @@ class DemoRecorder:
         inp = prepare_input(s.obs["rgb"], s.obs["depth"], s.obs["goal"], maps.i_u, maps.i_cog, cfg)
         label = getattr(self.agent, "last_expert_action", None)
         self.steps.append({
-            "rgbd": inp.rgbd[0].numpy().astype(np.float16),
-            "i_u": maps.i_u.detach().cpu().numpy().astype(np.float16),
-            "i_cog": maps.i_cog.detach().cpu().numpy().astype(np.float16),
+            "rgbd": self.storage.encode("rgbd", inp.rgbd.numpy()),
+            "i_u": self.storage.encode("i_u", maps.i_u.detach().cpu().numpy()[None]),
+            "i_cog": self.storage.encode("i_cog", maps.i_cog.detach().cpu().numpy()[None]),
             "action": s.action if label is None else label,
             "executed": s.action,
             "goal_angle": float(s.info["goal_angle"]),
@@ -267,12 +271,15 @@ class DemoRecorder:
     def arrays(self) -> dict[str, np.ndarray]:
         st = self.steps
         return {
-            "rgbd": np.stack([x["rgbd"] for x in st]),
-            "i_u": np.stack([x["i_u"] for x in st]),
-            "i_cog": np.stack([x["i_cog"] for x in st]),
+            **{k: _join([x[k] for x in st]) for k in ("rgbd", "i_u", "i_cog")},
             "action": np.array([x["action"] for x in st], dtype=np.int8),
             "executed": np.array([x["executed"] for x in st], dtype=np.int8),
             "goal_angle": np.array([x["goal_angle"] for x in st], dtype=np.float32),
             "pose": np.stack([x["pose"] for x in st]),
             **self.goal,
         }
+
+
+def _join(steps: list) -> np.ndarray | QuantizedArray:
+    """Per-step (1, ...) arrays, plain or compact, joined along the step axis."""
+    return QuantizedArray.concatenate(steps) if isinstance(steps[0], QuantizedArray) else np.concatenate(steps)

@@ -1,6 +1,7 @@
 """Demonstration data: episode files of a collection, checked, indexed and served as policy batches.
 
-Episodes are memory-mapped; a sampler walks a shuffled buffer of episodes at a time (so the page
+Episodes are memory-mapped (float16, or the compact codes of ``nue.train.compact``, decoded to float32 only
+for the steps a batch gathers); a sampler walks a shuffled buffer of episodes at a time (so the page
 cache holds what is being read when the data outgrow memory) and shuffles their steps. A file that
 is truncated or fails its checksum is reported by name and skipped, never silently used.
 """
@@ -73,6 +74,10 @@ class DemoSet:
         if max_episodes is not None:
             files = files[:max_episodes]
         self.episodes: list[dict[str, np.ndarray]] = []
+        """Per episode: name -> (T, ...) step array (memory-mapped; compact ones as ``QuantizedArray``) or a
+        per-episode array (the goal photos)."""
+        self.files: list[Path] = []
+        """The file of each episode."""
         self.metas: list[dict] = []
         self.skipped: list[tuple[Path, str]] = []
         for f in files:
@@ -83,6 +88,7 @@ class DemoSet:
                 warnings.warn(f"skipping {f}: {exc.problem}", stacklevel=2)
                 continue
             self.episodes.append(arrays)
+            self.files.append(f)
             self.metas.append(meta)
         lengths = np.array([len(a["action"]) for a in self.episodes], dtype=np.int64)
         self.lengths = lengths
@@ -110,14 +116,19 @@ class DemoSet:
         return counts
 
     def batch(self, episodes: np.ndarray, steps: np.ndarray, model_cfg, device="cpu") -> Batch:
-        """Gather the given (episode, step) pairs, any leading shape, into a :class:`Batch`."""
+        """Gather the given (episode, step) pairs, any leading shape, into a :class:`Batch`.
+
+        Reads one index array per episode in the batch (not one per sample); float16 arrays are widened
+        and compact ones (:class:`~nue.train.compact.QuantizedArray`) decoded to float32 there.
+        """
         shape = episodes.shape
         ep, st = episodes.ravel(), steps.ravel()
         goal_key = "goal_map" if tuple(model_cfg.goal_size) == tuple(model_cfg.map_size) else "goal_frame"
+        groups = episode_groups(ep)
 
-        def gather(key, per_episode=False):
-            parts = [self.episodes[e][key] if per_episode else self.episodes[e][key][t] for e, t in zip(ep, st)]
-            return torch.from_numpy(np.stack(parts).astype(np.float32, copy=False))
+        def gather(key, dtype=np.float32, per_episode=False):
+            pieces = [(self.episodes[e][key], pos) for e, pos in groups]
+            return torch.from_numpy(take_steps(pieces, None if per_episode else st, len(ep), dtype))
 
         def shaped(x):
             return x.reshape(*shape, *x.shape[1:]).to(device)
@@ -128,9 +139,31 @@ class DemoSet:
             i_u=shaped(gather("i_u")) if model_cfg.uses_i_u else None,
             i_cog=shaped(gather("i_cog")) if model_cfg.uses_i_cog else None,
         )
-        action = torch.as_tensor(np.array([self.episodes[e]["action"][t] for e, t in zip(ep, st)], dtype=np.int64))
-        angle = torch.as_tensor(np.array([self.episodes[e]["goal_angle"][t] for e, t in zip(ep, st)], dtype=np.float32))
+        action, angle = gather("action", np.int64), gather("goal_angle")
         return Batch(inp, action.reshape(shape).to(device), angle.reshape(shape).to(device))
+
+
+def episode_groups(ep: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """(episode, positions in ``ep`` holding it) for each distinct episode of ``ep`` (N,), in ascending order."""
+    order = np.argsort(ep, kind="stable")
+    uniq, starts = np.unique(ep[order], return_index=True)
+    return [(int(e), pos) for e, pos in zip(uniq, np.split(order, starts[1:]))]
+
+
+def take_steps(pieces, steps: np.ndarray | None, n: int, dtype=np.float32) -> np.ndarray:
+    """The (n, ...) ``dtype`` array whose rows ``pos`` are ``a[steps[pos]]``, for each ``(a, pos)`` of ``pieces``.
+
+    ``a`` (T, ...) is one episode's step-indexable array (memory-mapped, a ``QuantizedArray``, a view): one
+    fancy index per episode, written into a preallocated output (no per-sample copies). ``steps=None``: ``a``
+    is a per-episode array (...) repeated at its positions.
+    """
+    if not pieces:
+        raise ValueError("an empty batch")
+    first = pieces[0][0]
+    out = np.empty((n, *(first.shape if steps is None else first.shape[1:])), dtype)
+    for a, pos in pieces:
+        out[pos] = a if steps is None else a[steps[pos]]
+    return out
 
 
 def swap_maps(batch, rng: np.random.Generator, p: float):
