@@ -15,6 +15,7 @@ import typer
 
 from nue import cli_args as A
 from nue.cli_learn import collect_cmd, dagger_cmd, select_cmd, train_cmd
+from nue.cli_reproduce import make_set_cmd, reproduce_cmd
 from nue.errors import NueError
 from nue.outputs import check_output_dir, check_output_file
 
@@ -33,7 +34,8 @@ app.add_typer(episodes_app, name="episodes")
 
 @scenes_app.command("generate")
 def scenes_generate(
-    split: str = typer.Option(..., help="train (21 houses) or val (14 houses)."),
+    split: str = typer.Option(..., help="train (21 houses), val (14 houses) or val_plain (14 houses of the held-out "
+                              "plain scene style)."),
     out: Path = typer.Option(..., help="Folder to write <split>_<NN>/ scene folders into."),
     force: bool = typer.Option(False, help="Regenerate generated houses that are corrupt, incomplete or another house."),
 ):
@@ -104,6 +106,7 @@ def episodes_convert(
 
 
 EPISODE_FORMATS = ("nue", "authors", "habitat")
+episodes_app.command("make-set")(make_set_cmd)
 
 
 def _echo_episode_checks(skipped, snapped: dict | None = None, source=None) -> None:
@@ -163,6 +166,7 @@ app.command("collect")(collect_cmd)
 app.command("train")(train_cmd)
 app.command("dagger")(dagger_cmd)
 app.command("select")(select_cmd)
+app.command("reproduce")(reproduce_cmd)
 
 
 @app.command("eval")

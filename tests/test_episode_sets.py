@@ -71,6 +71,15 @@ def test_extending_keeps_the_episodes_and_continues_their_ids(box_scene, box_nav
     assert all(e.start_position != b.start_position for e in more[2:] for b in base)
 
 
+def test_make_set_refuses_an_unknown_set(tmp_path, capsys):
+    from nue.cli import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["episodes", "make-set", "val999", "--root", str(tmp_path), "--scenes-root", str(tmp_path / "scenes")])
+    assert stop.value.code == 2 and "unknown episode set" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
 def test_eval_finds_the_held_out_houses_by_their_file_names(scenes, tmp_path):
     """``nue eval --episodes-dir episodes/val_plain`` runs the val_plain houses, not the val houses of the same index."""
     shutil.copy(EPISODES / "val_plain" / "val_plain_00.json", tmp_path)

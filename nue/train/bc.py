@@ -96,6 +96,8 @@ class TrainConfig:
     """Closed-loop selection: how many of the last snapshots compete."""
     select_workers: int = 1
     """Closed-loop selection: worker processes."""
+    select_scenes_root: str = "data/scenes"
+    """Closed-loop selection: where the training houses are (generated if missing)."""
     verify_data: bool = True
     """Check every episode file's checksums when opening the data (bad files are skipped)."""
 
@@ -257,7 +259,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     clock = {"elapsed": 0.0}
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_factor(s, cfg, clock["elapsed"]))
     rng = np.random.default_rng([cfg.seed, rank])
-    step, best = 0, -1.0
+    step, best = 0, -math.inf  # the score is held-out accuracy, or -loss without held-out episodes
     elapsed = 0.0
     per_rank = cfg.batch_size // world
     if model_cfg.recurrent:
@@ -366,8 +368,9 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     if world > 1:
         torch.distributed.barrier()
     if cfg.select == "closed_loop" and rank == 0:
-        select_checkpoint(out_dir, SelectConfig(episodes_dir=cfg.select_episodes, candidates=cfg.select_candidates,
-                                                workers=cfg.select_workers, device=cfg.device), progress=progress)
+        select_checkpoint(out_dir, SelectConfig(episodes_dir=cfg.select_episodes, scenes_root=cfg.select_scenes_root,
+                                                candidates=cfg.select_candidates, workers=cfg.select_workers,
+                                                device=cfg.device), progress=progress)
     if world > 1:
         torch.distributed.barrier()
     return TrainResult(out_dir / "best.pt", out_dir / "last.pt", step, step - first_step, elapsed)

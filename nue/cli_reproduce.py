@@ -1,0 +1,67 @@
+"""The ``nue reproduce`` command (Table I in one resumable run) and ``nue episodes make-set`` (the fixed
+evaluation episode sets); registered on the app in :mod:`nue.cli`, which handles errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from nue import cli_args as A
+from nue.errors import ConfigError
+from nue.outputs import check_output_dir, check_output_file
+
+
+def _ints(option: str, text: str) -> tuple[int, ...]:
+    """Comma-separated integers (``"0,3,5"``); :class:`~nue.errors.ConfigError` naming ``option`` otherwise."""
+    try:
+        return tuple(int(v) for v in text.split(",") if v.strip()) if text else ()
+    except ValueError:
+        raise ConfigError(option, f"expected comma-separated integers, got {text!r}") from None
+
+
+def reproduce_cmd(
+    out: Path = typer.Option(Path("runs/reproduce"), help="Run folder (recipe, demonstrations, runs, records, report)."),
+    recipe: str = typer.Option("v3", help="Recipe preset (nue.recipe.RECIPES): v3 or quick."),
+    quick: bool = typer.Option(False, help="Tiny everything (the quick recipe): an end-to-end check in about a minute."),
+    scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the houses are (generated if missing)."),
+    episodes_root: Path = typer.Option(Path("episodes"), help="The committed episode sets (val, val252, val_plain, select)."),
+    workers: int = typer.Option(1, help="Parallel local worker processes (collection, training side by side, evaluation)."),
+    ray_address: Optional[str] = typer.Option(None, help="Run episodes and trainings as tasks on this Ray cluster."),
+    device: str = typer.Option("cpu", help="cpu or cuda."),
+    results_md: Optional[Path] = typer.Option(None, help="Also write RESULTS.md here (e.g. the repository's)."),
+    estimate_only: bool = typer.Option(False, "--estimate", help="Print the time estimate and stop."),
+):
+    """Collect, train every model of Table I, evaluate on the fixed episode sets, report: one resumable run."""
+    from nue.recipe import estimate, format_estimate, get_recipe
+    from nue.reproduce import reproduce
+
+    A.positive("--workers", workers)
+    A.device("--device", device)
+    chosen = get_recipe("quick" if quick else recipe)
+    if estimate_only:
+        typer.echo(f"recipe {chosen.name!r}, {workers} worker(s):\n{format_estimate(estimate(chosen, workers))}")
+        return
+    check_output_dir(out, "the run folder")
+    check_output_dir(scenes_root, "the scenes folder")
+    if results_md:
+        check_output_file(results_md)
+    res = reproduce(chosen, out, scenes_root, episodes_root, workers=workers, ray_address=ray_address, device=device,
+                    results_md=results_md, echo=typer.echo)
+    typer.echo(f"{len(res.ran)} stage(s) run, {len(res.kept)} kept from an earlier call; {res.results_md}")
+
+
+def make_set_cmd(
+    name: str = typer.Argument(..., help="Episode set (nue.sim.episode_sets.EPISODE_SETS): val, val252, val_plain."),
+    root: Path = typer.Option(Path("episodes"), help="Folder of the sets: writes ROOT/NAME/, reads the set it extends there."),
+    scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the houses are (generated if missing)."),
+    houses: str = typer.Option("", help="Comma-separated house indices (default: all of the split)."),
+):
+    """Rebuild a fixed evaluation episode set from its seeds (one file per house)."""
+    from nue.sim.episode_sets import build_episode_set, get_episode_set
+
+    get_episode_set(name)
+    check_output_dir(root / name, "the episode set folder")
+    paths = build_episode_set(name, scenes_root, root, _ints("--houses", houses))
+    typer.echo(f"{len(paths)} episode files -> {root / name}")

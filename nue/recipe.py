@@ -1,0 +1,322 @@
+"""Training recipes of ``nue reproduce`` as data: one frozen ``Recipe`` per way of building Table I, the named
+presets ``RECIPES``, and the time estimate a recipe implies, stage by stage (``estimate``).
+
+A recipe fixes everything that changes the results: the demonstrations (expert, DART noise, episodes per
+bin), the models and their training (budget in wall-clock minutes on one core or in samples, batch,
+precision, map dropout, closed-loop selection, optional DAgger), and the evaluation sets. How the run is
+executed (worker processes, a Ray cluster, folders) is not part of it. ``v3`` is the recipe of
+``checkpoints/README.md`` ("v3 recipe") applied to every model of Table I; ``quick`` is tiny everything,
+for CI.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+from nue.errors import ConfigError
+from nue.policy.config import ABLATION_PRESETS, get_model_config
+from nue.sim.episode_sets import EPISODE_SETS, get_episode_set, per_house_bin
+from nue.scene.generator import SPLITS
+
+TABLE_I_MODELS: tuple[str, ...] = ("nue", *ABLATION_PRESETS, "fr", "nav_a3c")
+"""Every trained row of the paper's Table I: NUE, the five ablations, FR and Nav-A3C."""
+
+
+@dataclass(frozen=True)
+class StepPlan:
+    """Optimiser steps of one model family."""
+
+    steps: int
+    """Step cap; also the length of the cosine schedule, which with a time budget follows whichever of
+    steps and time is further along."""
+    eval_every: int
+    """Held-out evaluation / snapshot interval, steps (closed-loop selection picks among the last snapshots)."""
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """Everything that decides the results of a ``nue reproduce`` run."""
+
+    name: str
+    """Preset name."""
+    task: str = "paper"
+    """Task preset."""
+    seed: int = 0
+    """Seed of collection, training and evaluation."""
+    # -- demonstrations --------------------------------------------------------------------------
+    expert: str = "explore"
+    """Demonstrating expert: ``geodesic`` or ``explore`` (``nue collect --expert``)."""
+    noise: float = 0.3
+    """DART noise: probability that a random move is executed instead of the expert's (the label stays)."""
+    episodes_per_bin: int = 6
+    """Training episodes per difficulty bin per training house."""
+    heldout_per_bin: int = 1
+    """Held-out episodes per bin per training house (held-out action accuracy)."""
+    train_houses: tuple[int, ...] = ()
+    """Indices of the training houses to collect in (empty = all 21)."""
+    memory: str = "fast"
+    """Memory (NeRF) preset run online during collection (and stored in every checkpoint)."""
+    # -- training --------------------------------------------------------------------------------
+    models: tuple[str, ...] = TABLE_I_MODELS
+    """Model presets to train, each on the same demonstrations with the same budget."""
+    train_minutes: float = 34.0
+    """Per-model wall-clock budget on one core (one torch thread), minutes; 0 = none."""
+    train_samples: int = 0
+    """Per-model budget in samples seen (steps x samples per step); 0 = none (then ``steps`` caps)."""
+    steps: tuple[tuple[str, StepPlan], ...] = (("nue", StepPlan(12_000, 750)), ("fr", StepPlan(30_000, 1_500)),
+                                               ("nav_a3c", StepPlan(30_000, 1_500)))
+    """Step plan per model kind (``ModelConfig.kind``: ``nue`` covers NUE and its ablations)."""
+    batch_size: int = 64
+    """Samples per optimiser step; recurrent models (Nav-A3C) get ``batch_size // seq_len`` sequences."""
+    seq_len: int = 8
+    """Recurrent models: steps per training sequence."""
+    lr: float = 1e-3
+    """Peak learning rate."""
+    warmup: int = 100
+    """Linear warm-up steps."""
+    precision: str = "bf16"
+    """``fp32``, ``bf16`` (autocast) or ``auto``."""
+    map_dropout: float = 0.2
+    """Probability of replacing a sample's memory maps by another sample's; models that read maps only."""
+    select: str = "closed_loop"
+    """How ``best.pt`` is chosen: ``closed_loop`` (snapshots run on ``episodes/select``) or ``accuracy``."""
+    select_candidates: int = 3
+    """Closed-loop selection: how many of the last snapshots compete."""
+    dagger_rounds: int = 0
+    """DAgger rounds after behaviour cloning (0 = none)."""
+    dagger_beta: float = 0.5
+    """DAgger: expert-action probability in round r is beta ** r."""
+    dagger_steps: int = 1_000
+    """DAgger: optimiser-step cap per round (the round's wall-clock budget is ``train_minutes``)."""
+    dagger_episodes_per_bin: int = 0
+    """DAgger: roll out the first k training episodes per bin per house (0 = all)."""
+    # -- evaluation ------------------------------------------------------------------------------
+    eval_sets: tuple[str, ...] = ("val252", "val_plain")
+    """Episode sets (``nue.sim.episode_sets``) every model runs; a set that extends another also reports it."""
+    eval_houses: tuple[int, ...] = ()
+    """Only these houses of each set (empty = all 14)."""
+    eval_max_episodes: int = 0
+    """Only the first N episodes per house (0 = all); smoke runs."""
+    eval_max_steps: int = 0
+    """Override the task's step limit (0 = keep it); smoke runs only."""
+    experts: tuple[str, ...] = ("expert", "expert-explore")
+    """Reference rows run on every set: ``expert`` (geodesic), ``expert-explore``."""
+    swap_maps: tuple[str, ...] = ("nue",)
+    """Models also run with another episode's maps (the swapped-maps control) on the first set."""
+
+    def __post_init__(self) -> None:
+        for m in self.models:
+            get_model_config(m)
+        for s in self.eval_sets:
+            get_episode_set(s)
+        if self.train_minutes <= 0 and self.train_samples <= 0 and not self.steps:
+            raise ConfigError("recipe", "needs a training budget: train_minutes, train_samples or steps")
+        if set(self.swap_maps) - set(self.models):
+            raise ConfigError("recipe", "swap_maps names a model the recipe does not train")
+
+    def step_plan(self, model: str) -> StepPlan:
+        """The step plan of a model preset (by its kind)."""
+        kind = get_model_config(model).kind
+        plans = dict(self.steps)
+        if kind not in plans:
+            raise ConfigError("recipe", f"no step plan for model kind {kind!r}")
+        return plans[kind]
+
+    def batch_for(self, model: str) -> int:
+        """``nue train --batch-size`` of a model: samples, or sequences for a recurrent model."""
+        return max(1, self.batch_size // self.seq_len) if get_model_config(model).recurrent else self.batch_size
+
+    def samples_per_step(self, model: str) -> int:
+        """Samples one optimiser step of ``model`` sees."""
+        return self.batch_for(model) * (self.seq_len if get_model_config(model).recurrent else 1)
+
+    def train_steps(self, model: str) -> int:
+        """Optimiser steps of ``model``: the samples budget divided by its samples per step, else its plan's cap."""
+        if self.train_samples > 0:
+            return math.ceil(self.train_samples / self.samples_per_step(model))
+        return self.step_plan(model).steps
+
+    def summary(self) -> str:
+        """One paragraph for RESULTS.md (the full recipe is the run's ``recipe.json``)."""
+        houses = len(self.train_houses) or len(SPLITS["train"])
+        if self.train_samples > 0:
+            budget = f"{self.train_samples:,} samples each"
+        elif self.train_minutes > 0:
+            budget = f"{self.train_minutes:g} min each on one core (one torch thread)"
+        else:
+            budget = "a fixed number of steps each"
+        dagger = f", then {self.dagger_rounds} DAgger round(s) (beta {self.dagger_beta})" if self.dagger_rounds else ""
+        select = (f"best.pt by closed-loop selection among the last {self.select_candidates} snapshots on episodes/select"
+                  if self.select == "closed_loop" else "best.pt by held-out action accuracy")
+        return (f"{self.name}: demonstrations from the {self.expert} expert with DART noise {self.noise:g}, "
+                f"{self.episodes_per_bin} + {self.heldout_per_bin} held-out episodes per bin in {houses} training houses "
+                f"(memory preset {self.memory}); {len(self.models)} models ({', '.join(self.models)}) trained for "
+                f"{budget}, batch {self.batch_size} samples, {self.precision}, map dropout {self.map_dropout:g} for the "
+                f"models that read maps{dagger}; {select}; evaluated on {', '.join(self.eval_sets)} "
+                f"(+ {', '.join(self.experts) or 'no experts'}; swapped maps: {', '.join(self.swap_maps) or 'none'})")
+
+    def to_dict(self) -> dict:
+        """Plain JSON data (stored in the run folder; a resumed run must match it exactly)."""
+        return _jsonable(dataclasses.asdict(self))
+
+    def replace(self, **changes) -> "Recipe":
+        return dataclasses.replace(self, **changes)
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    return x
+
+
+V3 = Recipe(name="v3")
+
+RECIPES: dict[str, Recipe] = {
+    "v3": V3,
+    "quick": V3.replace(
+        name="quick", expert="geodesic", episodes_per_bin=1, heldout_per_bin=0, train_houses=(0,), train_minutes=0.0,
+        steps=(("nue", StepPlan(2, 2)), ("fr", StepPlan(2, 2)), ("nav_a3c", StepPlan(2, 2))), batch_size=4,
+        seq_len=2, warmup=1, precision="fp32", select="accuracy", eval_houses=(0,), eval_max_episodes=1,
+        eval_max_steps=5, experts=("expert",)),
+}
+"""Named recipes: ``v3`` (checkpoints/README.md "v3 recipe", for all eight models) and ``quick`` (CI)."""
+
+
+def get_recipe(name: str) -> Recipe:
+    """A recipe preset by name; unknown -> ConfigError."""
+    try:
+        return RECIPES[name]
+    except KeyError:
+        raise ConfigError("--recipe", f"unknown recipe {name!r}; known: {', '.join(RECIPES)}") from None
+
+
+# --- time estimate --------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CostModel:
+    """Measured costs the estimate scales (2-core x86 CPU with AVX512-BF16, checkpoints/README.md v2 / v3 runs)."""
+
+    collect_s_per_step: float = 0.096
+    """Collection, seconds per step per worker (v2: 46 min x 2 workers / 59,332 steps; v3: 52 x 2 / 63,999)."""
+    steps_per_episode: tuple[tuple[str, float], ...] = (("geodesic", 36.8), ("explore", 102.0))
+    """Noise-free episode length per expert, steps (v1: 41,756 / 1,134; explore: v3's 145 / 1.42)."""
+    noise_length_factor: float = 1.4
+    """Episodes grow by 1 + this x noise (v2: 52.3 steps at noise 0.3 vs 36.8 without)."""
+    house_s: float = 3.0
+    """Generating one house (and loading it), seconds."""
+    samples_per_s: tuple[tuple[str, float], ...] = (("nue", 133.0), ("fr", 355.0), ("nav_a3c", 300.0))
+    """Training throughput on one shared core with bf16, per model kind (v2; Nav-A3C: FR's encoder + an LSTM)."""
+    select_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 15.0), ("fr", 2.2), ("nav_a3c", 2.2))
+    """Closed-loop selection, seconds per episode (400-step limit; v2 / v3: NUE 11.1 / 19.4, FR 1.9 / 2.3)."""
+    eval_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 25.0), ("fr", 5.0), ("nav_a3c", 5.0),
+                                                         ("expert", 2.0), ("expert-explore", 5.0), ("swap", 25.0))
+    """Evaluation, seconds per episode per worker (v2 / v3 NUE 21 / 29, FR 2.4 / 6.9; swapped maps ~ NUE)."""
+    train_overhead_s: float = 10.0
+    """Per model: loading the demonstrations, building the model, checkpoints, seconds."""
+    eval_overhead_s: float = 5.0
+    """Per method and set: loading checkpoints and houses in the workers, seconds."""
+    report_s: float = 30.0
+    """Report and RESULTS.md, seconds."""
+
+
+@dataclass(frozen=True)
+class StageEstimate:
+    """Estimated wall-clock of one stage."""
+
+    stage: str
+    """Stage name (``collect``, ``train``, ``eval/<set>``, ...)."""
+    seconds: float
+    """Estimated wall-clock, seconds."""
+    detail: str
+    """How it was computed."""
+
+
+def _kind_cost(table: tuple[tuple[str, float], ...], model: str) -> float:
+    costs = dict(table)
+    return costs[model] if model in costs else costs[get_model_config(model).kind]
+
+
+def _makespan(durations: list[float], slots: int) -> float:
+    """Wall-clock of jobs started in order on ``slots`` parallel slots, each taking the next free one."""
+    free = [0.0] * max(1, slots)
+    for d in durations:
+        i = free.index(min(free))
+        free[i] += d
+    return max(free) if durations else 0.0
+
+
+def episode_counts(recipe: Recipe) -> dict[str, int]:
+    """Evaluation episodes per set of a recipe (its houses and first-N limits applied)."""
+    out = {}
+    for name in recipe.eval_sets:
+        spec = EPISODE_SETS[name]
+        houses = len(recipe.eval_houses) or len(SPLITS[spec.split])
+        per_house = 3 * per_house_bin(name)
+        out[name] = houses * (min(per_house, recipe.eval_max_episodes) if recipe.eval_max_episodes else per_house)
+    return out
+
+
+def collection_episodes(recipe: Recipe) -> int:
+    """Demonstration episodes of a recipe: houses x 3 bins x (train + held-out per bin)."""
+    houses = len(recipe.train_houses) or len(SPLITS["train"])
+    return houses * 3 * (recipe.episodes_per_bin + recipe.heldout_per_bin)
+
+
+def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel()) -> list[StageEstimate]:
+    """Wall-clock per stage of ``recipe`` with ``workers`` parallel processes (a Ray cluster: its CPUs)."""
+    w = max(1, workers)
+    out = []
+    houses = (len(recipe.train_houses) or len(SPLITS["train"])) + sum(
+        len(recipe.eval_houses) or len(SPLITS[EPISODE_SETS[s].split]) for s in recipe.eval_sets)
+    out.append(StageEstimate("scenes", houses * cost.house_s, f"{houses} houses x {cost.house_s:.0f} s (kept if present)"))
+    n_eps = collection_episodes(recipe)
+    length = dict(cost.steps_per_episode)[recipe.expert] * (1 + cost.noise_length_factor * recipe.noise)
+    out.append(StageEstimate("collect", n_eps * length * cost.collect_s_per_step / w,
+                             f"{n_eps} episodes x ~{length:.0f} steps x {cost.collect_s_per_step} s / {w} worker(s)"))
+    jobs = []
+    select_eps = 21 if recipe.select == "closed_loop" else 0
+    for m in recipe.models:
+        if recipe.train_minutes > 0:
+            t = 60 * recipe.train_minutes
+        else:
+            t = recipe.train_steps(m) * recipe.samples_per_step(m) / _kind_cost(cost.samples_per_s, m)
+        rounds = 1 + recipe.dagger_rounds
+        rollouts = recipe.dagger_rounds * n_eps * length * cost.collect_s_per_step * 1.2
+        jobs.append(cost.train_overhead_s + rounds * t + rollouts + select_eps * recipe.select_candidates * _kind_cost(cost.select_s_per_episode, m))
+    select = (f" + closed-loop selection ({recipe.select_candidates} x 21 episodes)" if select_eps else "")
+    budget = f"{recipe.train_minutes:g} min" if recipe.train_minutes > 0 else "its steps"
+    side = f"{min(w, len(jobs))} side by side on one core each" if w > 1 else "one at a time on one core"
+    out.append(StageEstimate("train", _makespan(jobs, w), f"{len(jobs)} models x {budget}{select}"
+                             f"{f' x {1 + recipe.dagger_rounds} rounds' if recipe.dagger_rounds else ''}, {side}"))
+    scale = min(1.0, recipe.eval_max_steps / 800) if recipe.eval_max_steps else 1.0
+    for i, (name, n) in enumerate(episode_counts(recipe).items()):
+        per_ep = sum(_kind_cost(cost.eval_s_per_episode, m) for m in (*recipe.models, *recipe.experts))
+        methods = len(recipe.models) + len(recipe.experts)
+        out.append(StageEstimate(f"eval/{name}", (n * per_ep * scale + methods * cost.eval_overhead_s) / w,
+                                 f"{n} episodes x {methods} methods / {w} worker(s)"))
+        if i == 0 and recipe.swap_maps:
+            swap = len(recipe.swap_maps)
+            out.append(StageEstimate(f"eval/{name}+swap", (n * swap * dict(cost.eval_s_per_episode)["swap"] * scale
+                                                           + swap * cost.eval_overhead_s) / w,
+                                     f"{n} episodes x {swap} model(s), swapped maps"))
+    out.append(StageEstimate("report", cost.report_s, "tables, coverage plot, RESULTS.md"))
+    return out
+
+
+def format_duration(seconds: float) -> str:
+    """``1 h 05 min``, ``12 min``, ``40 s``."""
+    if seconds < 60:
+        return f"{seconds:.0f} s"
+    minutes = int(round(seconds / 60))
+    return f"{minutes // 60} h {minutes % 60:02d} min" if minutes >= 60 else f"{minutes} min"
+
+
+def format_estimate(stages: list[StageEstimate]) -> str:
+    """The estimate as printed before a run: one line per stage, then the total."""
+    width = max(len(s.stage) for s in stages)
+    lines = [f"  {s.stage:<{width}}  {format_duration(s.seconds):>11}  {s.detail}" for s in stages]
+    total = sum(s.seconds for s in stages)
+    return "\n".join(lines + [f"  {'total':<{width}}  {format_duration(total):>11}"])

@@ -1,0 +1,377 @@
+"""``nue reproduce``: Table I from nothing in one resumable command — houses, demonstrations, every model of
+the recipe, evaluation on the fixed episode sets, the report and RESULTS.md.
+
+Stages, in order (each one calls the library function of its command, and each is resumable by itself):
+
+==================  ==========================================================================================
+``scenes``          the training houses and the houses of every evaluation set (kept when intact)
+``collect``         ``nue collect`` into ``OUT/demos``
+``train/<model>``   ``nue train --resume`` into ``OUT/runs/<model>`` (closed-loop selection included); the
+                    models run side by side on ``--workers`` processes (one torch thread each) or Ray tasks
+``eval/<set>``      ``nue eval`` of every model and expert on the set into ``OUT/records/<set>.jsonl``
+``eval/<set>+swap`` the swapped-maps control on the first set
+``report``          ``nue report`` per set (``OUT/report/<set>/``: tables and coverage.png; a set that extends
+                    another also reports the smaller one from the same records) and ``OUT/RESULTS.md``
+==================  ==========================================================================================
+
+The recipe is stored in ``OUT/recipe.json`` when a run starts; a rerun with another recipe is refused.
+A finished stage leaves ``OUT/stages/<stage>.json`` (its wall-clock and summary) and is skipped by a
+rerun, so a killed run picks up at the stage it was in, and that stage continues from its own files.
+Test hook: ``NUE_FAIL_AFTER_STAGE=k`` stops the run after k stages finished in this call.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from nue.errors import ConfigError, DataError
+from nue.evaluate.report import (NOTES, build_table, format_counts_markdown, format_markdown, format_paired_markdown,
+                                 load_records, paired_differences, paper_table, render_results_md, write_report)
+from nue.evaluate.runner import EvalConfig, episode_files, run_eval
+from nue.jobs import Job, fail_point, run_jobs
+from nue.policy.config import get_model_config
+from nue.recipe import Recipe, estimate, format_duration, format_estimate
+from nue.scene.generator import SPLITS, ensure_house
+from nue.sim.episode_sets import get_episode_set
+from nue.train.bc import TrainConfig, train
+from nue.train.checkpoint import git_commit
+from nue.train.collect import CollectConfig, collect
+from nue.train.dagger import DaggerConfig, run_dagger
+from nue.viz.coverage import write_coverage_figure
+
+FORMAT = "nue-reproduce/1"
+FAIL_AFTER_STAGE_ENV = "NUE_FAIL_AFTER_STAGE"
+
+
+@dataclass(frozen=True)
+class RunFolders:
+    """Where a reproduce run reads and writes."""
+
+    out: Path
+    """The run folder."""
+    scenes_root: Path
+    """Generated houses (shared with other commands; kept when intact)."""
+    episodes_root: Path
+    """The committed episode sets (``episodes/``: ``val``, ``val252``, ``val_plain``, ``select``)."""
+
+    @property
+    def demos(self) -> Path:
+        return self.out / "demos"
+
+    def run(self, model: str) -> Path:
+        return self.out / "runs" / model
+
+    def records(self, stage: str) -> Path:
+        return self.out / "records" / f"{stage.removeprefix('eval/')}.jsonl"
+
+    def marker(self, stage: str) -> Path:
+        return self.out / "stages" / f"{stage.replace('/', '__')}.json"
+
+
+@dataclass(frozen=True)
+class TrainJob:
+    """One model's training, as it travels to a worker."""
+
+    train: TrainConfig
+    """Behaviour cloning (round 0 with DAgger)."""
+    collect: CollectConfig
+    """The demonstrations' collection (DAgger re-collects its episodes with the policy driving)."""
+    dagger: DaggerConfig | None
+    """DAgger schedule, or None for plain behaviour cloning."""
+    scenes_root: str
+    """Where the training houses are."""
+    progress: bool
+    """Show the training progress bar (single process only)."""
+
+
+@dataclass
+class ReproduceResult:
+    """What a call did."""
+
+    ran: list[str]
+    """Stages run (to completion) in this call."""
+    kept: list[str]
+    """Stages finished by an earlier call, skipped."""
+    results_md: Path
+    """The RESULTS.md written."""
+
+
+# --- the recipe and the stage markers -----------------------------------------------------------------
+def check_recipe(out: Path, recipe: Recipe) -> None:
+    """Store ``recipe`` in ``out/recipe.json``, or refuse a run folder that was started with another one."""
+    path = out / "recipe.json"
+    mine = recipe.to_dict()
+    if path.is_file():
+        try:
+            stored = json.loads(path.read_text())["recipe"]
+        except (ValueError, KeyError, TypeError):
+            raise DataError(path, "is not a reproduce recipe file") from None
+        if stored != mine:
+            diff = sorted(k for k in set(stored) | set(mine) if stored.get(k) != mine.get(k))
+            raise ConfigError(path, f"this run was started with recipe {stored.get('name')!r}, which differs in "
+                                    f"{', '.join(diff)}; rerun with that recipe or use another --out")
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    _write_json(path, {"format": FORMAT, "recipe": mine, "commit": git_commit(), "started": _now()})
+
+
+def _write_json(path: Path, data) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(data, indent=1, default=str) + "\n")
+    tmp.replace(path)
+
+
+def _now() -> str:
+    return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+
+
+def stage_done(folders: RunFolders, stage: str) -> dict | None:
+    """The marker of a finished stage (its seconds, summary and finish time), or None."""
+    path = folders.marker(stage)
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+# --- stages ---------------------------------------------------------------------------------------------
+def collect_config(recipe: Recipe, device: str = "cpu") -> CollectConfig:
+    """The demonstrations of a recipe."""
+    return CollectConfig(task=recipe.task, memory=recipe.memory, houses=recipe.train_houses,
+                         episodes_per_bin=recipe.episodes_per_bin, heldout_per_bin=recipe.heldout_per_bin,
+                         seed=recipe.seed, device=device, expert=recipe.expert, noise=recipe.noise)
+
+
+def train_config(recipe: Recipe, model: str, folders: RunFolders, device: str = "cpu") -> TrainConfig:
+    """``nue train`` of one model under a recipe (budget, batch, precision, map dropout, selection)."""
+    cfg = get_model_config(model)
+    return TrainConfig(
+        data=str(folders.demos), out=str(folders.run(model)), model=model, steps=recipe.train_steps(model),
+        batch_size=recipe.batch_for(model), seq_len=recipe.seq_len, lr=recipe.lr, warmup=recipe.warmup,
+        time_budget_s=60 * recipe.train_minutes, eval_every=recipe.step_plan(model).eval_every, seed=recipe.seed,
+        device=device, precision=recipe.precision, map_dropout=recipe.map_dropout if cfg.uses_memory_maps else 0.0,
+        select=recipe.select, select_episodes=str(folders.episodes_root / "select"),
+        select_candidates=recipe.select_candidates, select_scenes_root=str(folders.scenes_root))
+
+
+def train_model(job: Job) -> dict:
+    """Worker: train one model (resuming its run folder) with one torch thread; its best checkpoint and steps."""
+    import torch
+
+    p: TrainJob = job.payload
+    threads, t0 = torch.get_num_threads(), time.perf_counter()
+    torch.set_num_threads(1)
+    try:
+        if p.dagger is None:
+            res = train(p.train, resume=True, progress=p.progress)
+            out = {"best": str(res.best), "steps": res.step, "train_seconds": res.elapsed_s}
+        else:
+            rounds = run_dagger(p.train, p.collect, p.dagger, p.scenes_root, workers=1, progress=p.progress)
+            out = {"best": str(rounds[-1]["best"]), "rounds": rounds}
+    finally:
+        torch.set_num_threads(threads)
+    return {**out, "seconds": time.perf_counter() - t0}
+
+
+def eval_episodes_dir(recipe: Recipe, folders: RunFolders, set_name: str) -> Path:
+    """A set's episode folder: the committed one, or a copy of the recipe's houses of it in the run folder."""
+    source = folders.episodes_root / set_name
+    if not recipe.eval_houses:
+        return source
+    spec = get_episode_set(set_name)
+    target = folders.out / "episodes" / set_name
+    target.mkdir(parents=True, exist_ok=True)
+    for i in recipe.eval_houses:
+        name = f"{spec.split}_{i:02d}.json"
+        if not (target / name).is_file() or (target / name).read_bytes() != (source / name).read_bytes():
+            shutil.copyfile(source / name, target / name)
+    return target
+
+
+def _houses(recipe: Recipe) -> list[tuple[str, int]]:
+    train_houses = recipe.train_houses or tuple(range(len(SPLITS["train"])))
+    out = [("train", i) for i in train_houses]
+    for name in recipe.eval_sets:
+        split = get_episode_set(name).split
+        out += [(split, i) for i in (recipe.eval_houses or range(len(SPLITS[split]))) if (split, i) not in out]
+    return out
+
+
+# --- the run --------------------------------------------------------------------------------------------
+def plan_stages(recipe: Recipe) -> list[str]:
+    """Stage names of a recipe, in order."""
+    stages = ["scenes", "collect", *[f"train/{m}" for m in recipe.models]]
+    for i, name in enumerate(recipe.eval_sets):
+        stages.append(f"eval/{name}")
+        if i == 0 and recipe.swap_maps:
+            stages.append(f"eval/{name}+swap")
+    return stages + ["report"]
+
+
+def reproduce(recipe: Recipe, out, scenes_root="data/scenes", episodes_root="episodes", workers: int = 1,
+              ray_address: str | None = None, device: str = "cpu", results_md=None,
+              echo: Callable[[str], None] = print, progress: bool = True) -> ReproduceResult:
+    """Run (or resume) ``recipe`` into ``out``; see the module docstring."""
+    folders = RunFolders(Path(out), Path(scenes_root), Path(episodes_root))
+    check_recipe(folders.out, recipe)
+    est = {s.stage: s for s in estimate(recipe, workers)}
+    echo(f"nue reproduce: recipe {recipe.name!r} -> {folders.out}; estimated wall-clock with {workers} worker(s):\n"
+         f"{format_estimate(list(est.values()))}")
+    stages = plan_stages(recipe)
+    ran: list[str] = []
+    kept = [s for s in stages if stage_done(folders, s)]
+
+    def finish(stage: str, seconds: float, summary: dict) -> None:
+        _write_json(folders.marker(stage), {"stage": stage, "seconds": seconds, "finished": _now(), "summary": summary})
+        ran.append(stage)
+        echo(f"  {stage}: done in {format_duration(seconds)}")
+        fail_point(FAIL_AFTER_STAGE_ENV, len(ran), f"stage {stage}")
+
+    def header(i: int, stage: str, what: str) -> None:
+        guess = est.get(stage.split("/")[0] if stage.startswith("train/") else stage)
+        echo(f"[{i + 1}/{len(stages)}] {stage}: {what}" + (f" (estimate {format_duration(guess.seconds)})" if guess else ""))
+
+    pending_train = [s for s in stages if s.startswith("train/") and s not in kept]
+    for i, stage in enumerate(stages):
+        if stage in kept:
+            echo(f"[{i + 1}/{len(stages)}] {stage}: finished in an earlier call "
+                 f"({format_duration(stage_done(folders, stage)['seconds'])}), kept")
+            continue
+        if stage.startswith("train/"):
+            if stage == pending_train[0]:
+                header(i, "train", f"{len(pending_train)} model(s): {', '.join(s[6:] for s in pending_train)}")
+                _run_training(recipe, folders, pending_train, workers, ray_address, device, progress, finish)
+            continue
+        t0 = time.perf_counter()
+        if stage == "scenes":
+            header(i, stage, "houses")
+            houses = _houses(recipe)
+            for split, index in houses:
+                ensure_house(split, index, folders.scenes_root)
+            finish(stage, time.perf_counter() - t0, {"houses": [f"{s}_{k:02d}" for s, k in houses]})
+        elif stage == "collect":
+            header(i, stage, f"demonstrations -> {folders.demos}")
+            summary = collect(folders.demos, collect_config(recipe, device), folders.scenes_root, workers=workers,
+                              ray_address=ray_address, progress=progress)
+            finish(stage, time.perf_counter() - t0, summary)
+        elif stage.startswith("eval/"):
+            header(i, stage, f"-> {folders.records(stage)}")
+            summary = _run_eval(recipe, folders, stage, workers, ray_address, device, progress)
+            finish(stage, time.perf_counter() - t0, summary)
+        elif stage == "report":
+            header(i, stage, f"-> {folders.out / 'report'}, RESULTS.md")
+            md = write_results(recipe, folders)
+            if results_md:
+                Path(results_md).write_text(md.read_text())
+            finish(stage, time.perf_counter() - t0, {"results_md": str(md)})
+    md = folders.out / "RESULTS.md"
+    if results_md and "report" in kept:
+        Path(results_md).write_text(md.read_text())
+    return ReproduceResult(ran, kept, Path(results_md) if results_md else md)
+
+
+def _run_training(recipe, folders: RunFolders, stages: list[str], workers: int, ray_address, device, progress,
+                  finish) -> None:
+    """The models of ``stages`` side by side on ``workers`` processes (or Ray tasks), one torch thread each."""
+    dagger = None
+    if recipe.dagger_rounds:
+        dagger = DaggerConfig(rounds=recipe.dagger_rounds, beta0=recipe.dagger_beta, steps_per_round=recipe.dagger_steps,
+                              episodes_per_bin=recipe.dagger_episodes_per_bin, round_budget_s=60 * recipe.train_minutes)
+    single = workers <= 1 and not ray_address
+    jobs = [Job(stage, TrainJob(train_config(recipe, stage[6:], folders, device), collect_config(recipe, device), dagger,
+                                str(folders.scenes_root), progress and single)) for stage in stages]
+    def on_result(job: Job, result: dict) -> None:
+        finish(job.key, result["seconds"], result)
+
+    run_jobs(jobs, train_model, on_result, workers=workers, ray_address=ray_address, desc="train", progress=progress)
+
+
+def _methods(recipe: Recipe, folders: RunFolders, models) -> list[str]:
+    out = []
+    for m in models:
+        marker = stage_done(folders, f"train/{m}")
+        if marker is None:
+            raise DataError(folders.marker(f"train/{m}"), f"model {m} has not been trained in this run")
+        out.append(f"{m}={marker['summary']['best']}")
+    return out
+
+
+def _run_eval(recipe: Recipe, folders: RunFolders, stage: str, workers, ray_address, device, progress) -> dict:
+    name = stage.removeprefix("eval/")
+    swap = name.endswith("+swap")
+    set_name = name.removesuffix("+swap")
+    spec = get_episode_set(set_name)
+    methods = _methods(recipe, folders, recipe.swap_maps if swap else recipe.models)
+    if not swap:
+        methods += list(recipe.experts)
+    cfg = EvalConfig(episodes_dir=str(eval_episodes_dir(recipe, folders, set_name)), scenes_root=str(folders.scenes_root),
+                     split=spec.split, task=recipe.task, seed=recipe.seed, device=device, swap_maps=swap,
+                     max_episodes=recipe.eval_max_episodes, max_steps=recipe.eval_max_steps)
+    out = run_eval(methods, folders.records(stage), cfg, workers=workers, ray_address=ray_address, progress=progress)
+    return {"records": str(out), "episode_set": set_name, "methods": methods}
+
+
+# --- report ---------------------------------------------------------------------------------------------
+def _subset(records, episodes_dir: Path) -> list:
+    """The records of the episodes in ``episodes_dir``'s files (the smaller set a larger one extends)."""
+    keys = set()
+    for f in episode_files(episodes_dir):
+        scene = f.name.removesuffix(".json")
+        keys |= {(scene, e["episode_id"]) for e in json.loads(f.read_text())["episodes"]}
+    return [r for r in records if (r.scene, r.episode_id) in keys]
+
+
+def report_tables(recipe: Recipe, folders: RunFolders) -> dict[str, list]:
+    """Records per reported table: every evaluation set (the first with its swapped-maps rows), and each smaller
+    set a set extends, taken from the larger set's records."""
+    tables: dict[str, list] = {}
+    for i, name in enumerate(recipe.eval_sets):
+        recs = load_records(folders.records(f"eval/{name}"))
+        spec = get_episode_set(name)
+        if spec.extends and (folders.episodes_root / spec.extends).is_dir():
+            tables[spec.extends] = _subset(recs, folders.episodes_root / spec.extends)
+        if i == 0 and recipe.swap_maps:
+            recs = recs + load_records(folders.records(f"eval/{name}+swap"))
+        tables[name] = recs
+    return tables
+
+
+def _set_section(name: str, records) -> str:
+    spec = get_episode_set(name)
+    rows = build_table(records)
+    diffs = paired_differences(records)
+    return (f"## Table I on `{name}`: {spec.description}\n\n{format_markdown(rows, paper_table())}\n{NOTES}\n\n"
+            f"Episodes per cell (successes / episodes):\n\n{format_counts_markdown(rows)}\n"
+            + (f"Paired differences to NUE (95% paired bootstrap):\n\n{format_paired_markdown(diffs)}\n" if diffs else ""))
+
+
+def write_results(recipe: Recipe, folders: RunFolders) -> Path:
+    """``OUT/report/<table>/`` for every table and ``OUT/RESULTS.md`` (the first set in full, then the others)."""
+    tables = report_tables(recipe, folders)
+    for name, recs in tables.items():
+        write_report(recs, folders.out / "report" / name, task=recipe.task)
+        write_coverage_figure(recs, folders.out / "report" / name)
+    main = recipe.eval_sets[0]
+    walls = {s: stage_done(folders, s) for s in plan_stages(recipe) if s != "report"}
+    collected = (walls.get("collect") or {}).get("summary", {})
+    started = json.loads((folders.out / "recipe.json").read_text()).get("started", "?")
+    meta = {
+        "command": f"nue reproduce --recipe {recipe.name} --out {folders.out}",
+        "date": f"{started} - {_now()}", "commit": git_commit(),
+        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}",
+        "recipe": f"{recipe.summary()} (all values: {folders.out / 'recipe.json'})",
+        "episodes": f"`{main}`: {get_episode_set(main).description}",
+        "demonstrations": (f"{collected.get('episodes', '?')} episodes, {collected.get('steps', '?')} steps, expert SR "
+                           f"{100 * collected.get('expert_success_rate', 0):.1f}%"),
+        "stage wall-clock": "; ".join(f"{s} {format_duration(m['seconds'])}" for s, m in walls.items() if m),
+    }
+    text = render_results_md(tables[main], meta, recipe.task)
+    text += "".join(f"\n{_set_section(name, recs)}" for name, recs in tables.items() if name != main)
+    path = folders.out / "RESULTS.md"
+    path.write_text(text)
+    return path

@@ -1,0 +1,122 @@
+"""``nue reproduce``: the quick recipe end to end through the command line, killed after three stages (an
+injected failure) and rerun — no finished stage is redone, and the rest completes to RESULTS.md; a rerun
+with another recipe is refused; the recipes are the documented ones; the estimate adds up."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+from nue.cli import main
+from nue.errors import ConfigError
+from nue.evaluate.report import load_records
+from nue.recipe import RECIPES, TABLE_I_MODELS, StepPlan, estimate, format_estimate, get_recipe
+from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, plan_stages, reproduce
+
+EPISODES = Path(__file__).resolve().parents[1] / "episodes"
+pytestmark = pytest.mark.timeout(600)  # the quick run takes ~35 s of CPU; a loaded machine stretches the wall clock
+KILLED_AFTER = ("scenes", "collect", "train/nue")
+
+
+def _nue(*args) -> tuple[int, str]:
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), pytest.raises(SystemExit) as stop:
+        main([str(a) for a in args])
+    return stop.value.code, buf.getvalue()
+
+
+def _stamps(folder: Path) -> dict[str, int]:
+    return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """The quick recipe, stopped after three stages, then rerun to the end."""
+    root = tmp_path_factory.mktemp("reproduce")
+    args = ["reproduce", "--quick", "--out", root / "run", "--scenes-root", root / "scenes", "--episodes-root", EPISODES]
+    os.environ[FAIL_AFTER_STAGE_ENV] = str(len(KILLED_AFTER))
+    try:
+        first = _nue(*args)
+    finally:
+        del os.environ[FAIL_AFTER_STAGE_ENV]
+    out = root / "run"
+    before = {part: _stamps(out / part) for part in ("demos", "runs/nue", "stages")}
+    second = _nue(*args)
+    return out, first, second, before, args
+
+
+def test_quick_run_prints_its_estimate_and_reaches_results(run):
+    out, first, second, _, _ = run
+    code, text = first
+    assert code == 3  # the injected failure: "stopped"
+    assert text.startswith("nue reproduce: recipe 'quick'") and "estimated wall-clock" in text
+    assert text.index("  total ") < text.index("[1/")  # the whole estimate before the first stage
+    code, text = second
+    assert code == 0, text
+    stages = plan_stages(RECIPES["quick"])
+    assert all(RunFolders(out, Path(), Path()).marker(s).is_file() for s in stages)
+    records = {name: load_records(out / "records" / f"{name}.jsonl") for name in ("val252", "val_plain", "val252+swap")}
+    methods = {*TABLE_I_MODELS, "expert"}
+    assert {r.method for r in records["val252"]} == methods == {r.method for r in records["val_plain"]}
+    assert {r.scene for r in records["val252"]} == {"val_00"} and {r.scene for r in records["val_plain"]} == {"val_plain_00"}
+    assert {r.method for r in records["val252+swap"]} == {"nue+swap"}
+    results = (out / "RESULTS.md").read_text()
+    assert "## Table I: ours next to the paper" in results and "nue reproduce --recipe quick" in results
+    assert "## Table I on `val`" in results and "## Table I on `val_plain`" in results
+    for table in ("val252", "val", "val_plain"):
+        assert (out / "report" / table / "table.md").is_file() and (out / "report" / table / "coverage.png").is_file()
+    assert json.loads((out / "recipe.json").read_text())["recipe"] == RECIPES["quick"].to_dict()
+
+
+def test_a_killed_run_resumes_without_redoing_a_stage(run):
+    out, _, (_, text), before, _ = run
+    for stage in KILLED_AFTER:
+        assert f"{stage}: finished in an earlier call" in text
+        assert f"  {stage}: done" not in text
+    assert "  train/abl_none: done" in text and "  report: done" in text
+    for part, stamps in before.items():  # collected episodes, the finished model's run folder, the stage markers
+        now = _stamps(out / part)
+        assert {k: now[k] for k in stamps} == stamps, part
+
+
+def test_a_rerun_with_another_recipe_is_refused(run):
+    out, _, _, _, args = run
+    with pytest.raises(ConfigError, match="noise"):
+        reproduce(get_recipe("quick").replace(noise=0.1), out, echo=lambda s: None)
+    code, _ = _nue(*[a for a in args if a != "--quick"])  # the default recipe, v3, into the quick run's folder
+    assert code == 2
+    assert json.loads((out / "recipe.json").read_text())["recipe"]["name"] == "quick"
+
+
+def test_v3_is_the_documented_recipe_for_every_model():
+    v3 = get_recipe("v3")
+    assert (v3.expert, v3.noise, v3.episodes_per_bin, v3.heldout_per_bin) == ("explore", 0.3, 6, 1)
+    assert (v3.train_minutes, v3.batch_size, v3.precision, v3.map_dropout) == (34.0, 64, "bf16", 0.2)
+    assert (v3.select, v3.select_candidates) == ("closed_loop", 3)
+    assert v3.models == TABLE_I_MODELS and len(TABLE_I_MODELS) == 8
+    assert v3.step_plan("nue") == v3.step_plan("abl_fu") == StepPlan(12_000, 750)
+    assert v3.step_plan("fr") == StepPlan(30_000, 1_500)
+    assert v3.batch_for("nav_a3c") == 8 and v3.samples_per_step("nav_a3c") == 64 == v3.samples_per_step("nue")
+    by_samples = v3.replace(train_samples=640_000)
+    assert by_samples.train_steps("nue") == by_samples.train_steps("nav_a3c") == 10_000
+    with pytest.raises(ConfigError):
+        v3.replace(models=("nue", "no_such_model"))
+    with pytest.raises(ConfigError):
+        get_recipe("v9")
+
+
+def test_the_estimate_covers_every_stage_and_scales_with_workers():
+    v3 = get_recipe("v3")
+    one, two = estimate(v3, 1), estimate(v3, 2)
+    assert [s.stage for s in one] == ["scenes", "collect", "train", "eval/val252", "eval/val252+swap", "eval/val_plain",
+                                      "report"]
+    by = {s.stage: s.seconds for s in two}
+    assert 40 * 60 < by["collect"] < 60 * 60  # v3 measured 52 min on 2 workers
+    assert by["train"] >= 4 * 34 * 60  # 8 models x 34 min, two at a time
+    assert sum(s.seconds for s in two) < sum(s.seconds for s in one)
+    assert format_estimate(two).splitlines()[-1].split()[0] == "total"
