@@ -285,6 +285,7 @@ def _run_training(recipe, folders: RunFolders, stages: list[str], workers: int, 
     single = workers <= 1 and not ray_address
     jobs = [Job(stage, TrainJob(train_config(recipe, stage[6:], folders, device), collect_config(recipe, device), dagger,
                                 str(folders.scenes_root), progress and single)) for stage in stages]
+
     def on_result(job: Job, result: dict) -> None:
         finish(job.key, result["seconds"], result)
 
