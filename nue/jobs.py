@@ -6,7 +6,12 @@ torch thread and one llvmpipe thread each: forking after EGL or torch can hang) 
 existing cluster, and hands each result to ``on_result`` in the driver, which writes it atomically.
 A killed run therefore loses at most the jobs in flight; rerunning the same command resumes.
 Local workers watch their parent and exit as soon as it is gone, so killing the driver (even with
-``kill -9``) leaves no worker, and then no resource tracker, behind.
+``kill -9``) leaves no worker, and then no resource tracker, behind. Ray tasks die with their driver
+through Ray's own job lifetime: the driver's ``ray.init`` makes it a Ray job, the tasks are that job's
+(plain tasks, no detached actors), and when the driver process ends — also by ``kill -9`` — Ray marks
+the job finished and every node's raylet kills the job's worker processes, running tasks included
+(a few seconds on one node; tested). With ``--ray-address local`` the driver starts a cluster of its
+own, which ends with it. A driver that stops with an error cancels its pending and running tasks.
 
 Failure injection for tests, through the one hook :func:`fail_point`: with ``NUE_FAIL_AFTER=k`` in the
 environment, the driver raises :class:`InjectedFailure` after k results were written in this run (as if
@@ -21,7 +26,7 @@ import threading
 import time
 import zlib
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Sequence, TypeVar
 
 import numpy as np
@@ -60,10 +65,13 @@ def episode_seed(seed: int, scene: str, episode_id: str) -> int:
 
 @dataclass(frozen=True)
 class Job:
-    """One unit of work: ``key`` names its output (unique, file-safe); ``payload`` is JSON-like."""
+    """One unit of work: ``key`` names its output (unique, file-safe); ``payload`` is what the worker needs,
+    a picklable value (a frozen dataclass such as ``EvalJob`` or ``CollectJob``)."""
 
     key: str
-    payload: dict = field(default_factory=dict)
+    """Unique, file-safe name of the job's output."""
+    payload: Any = None
+    """The worker's input, pickled to it as it is."""
 
 
 PARENT_POLL_S = 0.2
@@ -177,12 +185,17 @@ def _run_ray(todo: Sequence[Job], fn, finish, address: str) -> None:
     if not ray.is_initialized():
         ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
     remote = ray.remote(num_cpus=1)(_ray_call)
-    refs = {remote.remote(fn, job): job for job in todo}
-    while refs:
-        ready, _ = ray.wait(list(refs), num_returns=1)
-        for ref in ready:
-            job = refs.pop(ref)
-            finish(job, ray.get(ref)[1])
+    refs = {remote.remote(fn, job): job for job in todo}  # tasks of this driver's job: they end with it
+    try:
+        while refs:
+            ready, _ = ray.wait(list(refs), num_returns=1)
+            for ref in ready:
+                job = refs.pop(ref)
+                finish(job, ray.get(ref)[1])
+    except BaseException:
+        for ref in refs:
+            ray.cancel(ref, force=True)
+        raise
 
 
 def _ray_call(fn, job):

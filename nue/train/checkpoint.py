@@ -7,7 +7,7 @@ format ``nue-checkpoint/1``) holds its :meth:`~PolicyHeader.to_dict` next to the
 state. Saving is atomic (temporary file + rename). ``load_header`` reads the description,
 ``load_policy`` rebuilds the network; ``check_compatible`` refuses a task/memory preset or scene set
 that differs from the stored one; ``load_agent`` gives the agent and memory of the shared loop (eval,
-DAgger collection, the demo).
+DAgger collection, the demo), ``load_memory`` the memory alone (``nue view``'s replay).
 """
 
 from __future__ import annotations
