@@ -20,6 +20,7 @@ import torch
 from nue.errors import DataError
 from nue.policy.inputs import PolicyInput
 from nue.train.collect import data_layout
+from nue.train.compact import QuantizedArray
 from nue.train.episode_file import read_episode_file
 
 MAP_KEYS = ("i_u", "i_cog")
@@ -73,7 +74,7 @@ class DemoSet:
         files = [f for root in roots for f in sorted((root / part).glob("*/*.nue"))]
         if max_episodes is not None:
             files = files[:max_episodes]
-        self.episodes: list[dict[str, np.ndarray]] = []
+        self.episodes: list[dict[str, np.ndarray | QuantizedArray]] = []
         """Per episode: name -> (T, ...) step array (memory-mapped; compact ones as ``QuantizedArray``) or a
         per-episode array (the goal photos)."""
         self.files: list[Path] = []
