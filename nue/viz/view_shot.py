@@ -13,6 +13,7 @@ import io
 import json
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -59,7 +60,7 @@ class DevTools:
         exe = executable or find_chromium()
         if exe is None:
             raise FileNotFoundError("no chromium on PATH")
-        self._profile = tempfile.TemporaryDirectory(prefix="nue-chromium-")
+        self._profile = tempfile.TemporaryDirectory(prefix="nue-chromium-", ignore_cleanup_errors=True)
         to_child, self._w = os.pipe()
         self._r, from_child = os.pipe()
 
@@ -73,7 +74,7 @@ class DevTools:
              "--enable-unsafe-swiftshader", "--no-first-run", "--disable-extensions", "--hide-scrollbars",
              "--mute-audio", f"--window-size={width},{height}", f"--user-data-dir={self._profile.name}", "about:blank"],
             preexec_fn=fds, close_fds=False, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL)
+            stderr=subprocess.DEVNULL, start_new_session=True)  # its own group: close() ends its helpers too
         os.close(to_child)
         os.close(from_child)
         self._buf, self._id = b"", 0
@@ -108,7 +109,12 @@ class DevTools:
         return base64.b64decode(self.call("Page.captureScreenshot", {"format": "png"}, page=True)["data"])
 
     def close(self) -> None:
-        self.proc.kill()
+        # Kill the whole process group: chromium's renderer / GPU helpers outlive a killed browser process
+        # for a moment and keep writing into the profile, which made its removal fail ("Directory not empty").
+        try:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
         self.proc.wait()
         os.close(self._w)
         os.close(self._r)
