@@ -14,7 +14,7 @@ from typing import Optional
 import typer
 
 from nue import cli_args as A
-from nue.cli_learn import collect_cmd, dagger_cmd, select_cmd, train_cmd
+from nue.cli_learn import collect_cmd, convert_cmd, dagger_cmd, select_cmd, train_cmd
 from nue.cli_reproduce import make_set_cmd, reproduce_cmd
 from nue.errors import NueError
 from nue.outputs import check_output_dir, check_output_file
@@ -163,6 +163,7 @@ def expert(
 
 
 app.command("collect")(collect_cmd)
+app.command("convert")(convert_cmd)
 app.command("train")(train_cmd)
 app.command("dagger")(dagger_cmd)
 app.command("select")(select_cmd)

@@ -61,6 +61,25 @@ def collect_cmd(
                f"{summary['bytes_per_step'] / 1024:.0f} KiB/step, expert SR {100 * summary['expert_success_rate']:.1f}% -> {out}")
 
 
+
+def convert_cmd(
+    source: Path = typer.Argument(..., help="Collection folder to re-encode (e.g. one written before the compact format)."),
+    out: Path = typer.Option(..., help="New collection folder (resumes if rerun)."),
+    rgbd_bits: int = typer.Option(8, help="Bits per RGB-D value (0 = float16)."),
+    i_cog_bits: int = typer.Option(4, help="Bits per I_cog value (0 = float16)."),
+):
+    """Copy a demonstration collection with its frames and maps stored compactly (~140 KiB a step)."""
+    from nue.train.compact import BITS, StepStorage
+    from nue.train.convert import convert_collection
+
+    for option, bits in (("--rgbd-bits", rgbd_bits), ("--i-cog-bits", i_cog_bits)):
+        if bits not in (0, *BITS):
+            raise ConfigError(option, f"must be 0 or one of {BITS}, got {bits}")
+    check_output_dir(out, "the output collection folder")
+    s = convert_collection(source, out, StepStorage(rgbd_bits=rgbd_bits, i_cog_bits=i_cog_bits), progress=True)
+    typer.echo(f"{s.episodes} episodes ({s.converted} converted now), {s.steps} steps, "
+               f"{s.kib_per_step_before:.0f} -> {s.kib_per_step_after:.0f} KiB/step -> {out}")
+
 # --- options shared by `nue train` and `nue dagger` (declared once) ---------------------------------
 _DATA = typer.Option(Path("data/demos"), help="Collection folder.")
 _MODEL = typer.Option("nue", help="Model preset: nue, abl_*, fr, nav_a3c.")

@@ -208,3 +208,80 @@ def test_old_float16_and_compact_episodes_load_side_by_side(tmp_path):
     # the compact episode stays within the bound of the stored float16 values
     assert np.abs(data.episodes[1]["i_cog"][:] - new["i_cog"].astype(np.float32)).max() <= \
         float(new["i_cog"].max()) / 15 / 2 * (1 + 1e-5)
+
+
+# --- nue convert: an old float16 collection re-encoded compactly ------------------------------------------
+def _float16_collection(root, rng):
+    """A collection folder as nue wrote it before the compact format: a real manifest, version-1 files."""
+    from nue.nerf.config import get_memory
+    from nue.train.manifest import CollectionManifest, DataLayout, write_manifest
+
+    write_manifest(root, CollectionManifest(task="paper", memory=get_memory("fast"),
+                                            model_layout=DataLayout.of(get_model_config("nue")), split="train",
+                                            scenes={"h": "0123456789abcdef"}, episodes_per_bin=2, heldout_per_bin=1,
+                                            seed=0))
+    episodes = {}
+    for rel, t in (("train/h/easy_000.nue", 3), ("train/h/easy_001.nue", 2), ("heldout/h/easy_000.nue", 4)):
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        episodes[rel] = _step_arrays(rng, t)
+        _write_version_1(root / rel, episodes[rel], {"steps": t, "episode": rel})
+    return episodes
+
+
+def test_convert_collection_re_encodes_and_resumes(tmp_path, capsys):
+    from nue.cli import main
+    from nue.train.convert import convert_collection
+    from nue.train.manifest import read_manifest
+
+    rng = np.random.default_rng(5)
+    src, out = tmp_path / "old", tmp_path / "new"
+    episodes = _float16_collection(src, rng)
+    s = convert_collection(src, out)
+    assert (s.episodes, s.converted, s.steps) == (3, 3, 9)
+    assert s.bytes_after < 0.45 * s.bytes_before  # random maps: i_cog 4 bits, RGB-D 8 bits, I_u float16
+    assert read_manifest(out) == read_manifest(src)
+    for rel, old in episodes.items():
+        assert read_header(out / rel)[0]["version"] == 2
+        got, meta = read_episode_file(out / rel, verify=True)
+        assert meta == {"steps": len(old["action"]), "episode": rel}
+        assert isinstance(got["i_cog"], QuantizedArray) and got["i_cog"].bits == 4
+        assert isinstance(got["rgbd"], QuantizedArray) and got["rgbd"].bits == 8
+        for k in ("action", "goal_angle", "goal_map", "goal_frame", "i_u"):  # copied as stored
+            assert got[k].dtype == old[k].dtype and np.array_equal(got[k], old[k]), k
+        x = old["rgbd"].astype(np.float32)
+        assert np.abs(got["rgbd"][:] - x).max() <= 1 / 255 / 2 + 1e-6  # values in [0, 1]: half an 8-bit step
+        assert np.abs(got["i_cog"][:] - old["i_cog"].astype(np.float32)).max() <= \
+            float(old["i_cog"].max()) / 15 / 2 * (1 + 1e-5)
+    assert DemoSet(out, "train").n_episodes == 2 and len(DemoSet(out, "heldout")) == 4
+
+    # resume: a missing and a truncated output file are written again, the intact one is kept
+    (out / "train/h/easy_000.nue").unlink()
+    bad = out / "heldout/h/easy_000.nue"
+    bad.write_bytes(bad.read_bytes()[:-100])
+    kept = (out / "train/h/easy_001.nue").stat().st_mtime_ns
+    s2 = convert_collection(src, out)
+    assert (s2.episodes, s2.converted, s2.steps, s2.bytes_after) == (3, 2, 9, s.bytes_after)
+    assert (out / "train/h/easy_001.nue").stat().st_mtime_ns == kept
+    read_episode_file(bad, verify=True)
+
+    # refusals: the source itself, a folder of another collection, no manifest; the CLI says so in one line
+    with pytest.raises(DataError, match="is the source collection"):
+        convert_collection(src, src)
+    other = tmp_path / "other"
+    _float16_collection(other, rng)
+    (other / "manifest.json").write_text((other / "manifest.json").read_text().replace('"seed": 0', '"seed": 1'))
+    with pytest.raises(DataError, match=r"other/manifest.json: holds a different collection \(differs in seed\)"):
+        convert_collection(src, other)
+    with pytest.raises(DataError, match="no manifest"):
+        convert_collection(tmp_path / "nothing", tmp_path / "n2")
+    assert not (tmp_path / "n2").exists()
+    with pytest.raises(SystemExit) as exc:
+        main(["convert", str(src), "--out", str(tmp_path / "n3"), "--i-cog-bits", "3"])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and err.startswith("error: --i-cog-bits: must be 0 or one of (4, 8)") and "\n" not in err
+    assert not (tmp_path / "n3").exists()
+    with pytest.raises(SystemExit) as exc:
+        main(["convert", str(src), "--out", str(tmp_path / "n4"), "--rgbd-bits", "0"])
+    assert exc.value.code == 0
+    assert "3 episodes (3 converted now), 9 steps" in capsys.readouterr().out
+    assert not isinstance(read_episode_file(tmp_path / "n4/train/h/easy_000.nue")[0]["rgbd"], QuantizedArray)
