@@ -140,6 +140,16 @@ def test_ablation_presets_have_exactly_their_modules(name):
     assert cfg.uses_i_u == fu and cfg.uses_i_cog
 
 
+def test_ablations_differ_from_nue_only_in_what_table_one_switches():
+    """Each ablation is the full model with f_u / AT / CBAM switched: same layout (goal also in f_p), same sizes."""
+    nue = get_model_config("nue")
+    for name, (fu, at, cbam) in TABLE_ONE.items():
+        cfg = get_model_config(name)
+        assert cfg.goal_in_perception and cfg.goal_size == nue.goal_size == nue.frame_size, name
+        assert cfg == nue.replace(name=name, use_uncertainty=fu, use_aux=at, use_cbam=cbam), name
+    assert not get_model_config("nue_paper").goal_in_perception
+
+
 def test_goal_in_perception_feeds_the_goal_to_f_p():
     paper, cfg = get_model_config("nue_paper"), get_model_config("nue")
     assert cfg.goal_in_perception and not paper.goal_in_perception

@@ -18,6 +18,10 @@ preset          f_u    AT     CBAM   note
 ``fr``          --     no     --     fully reactive: RGB-D + goal -> CNN -> policy
 ``nav_a3c``     --     no     --     same encoder as ``fr`` + LSTM memory
 ==============  =====  =====  =====  ==========================================
+
+The five ``abl_*`` rows are ``nue`` with components switched off, so they also feed the goal to f_p:
+an ablation differs from the full model only in what Table I switches. (Before the v5 recipe they
+were built on the paper's layout; checkpoints keep their own config, so old ones load unchanged.)
 """
 
 from __future__ import annotations
@@ -181,18 +185,21 @@ class ModelConfig:
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
 
 
-_NUE = ModelConfig()
+_NUE = ModelConfig(goal_in_perception=True)
+"""The full model as trained here (the goal also enters f_p); the ablations switch its components off."""
 
 MODEL_PRESETS: dict[str, ModelConfig] = {
-    "nue": _NUE.replace(goal_in_perception=True),
-    "nue_paper": _NUE.replace(name="nue_paper"),
+    "nue": _NUE,
+    "nue_paper": _NUE.replace(name="nue_paper", goal_in_perception=False),
     "abl_none": _NUE.replace(name="abl_none", use_uncertainty=False, use_aux=False, use_cbam=False),
     "abl_fu": _NUE.replace(name="abl_fu", use_uncertainty=True, use_aux=False, use_cbam=False),
     "abl_at_cbam": _NUE.replace(name="abl_at_cbam", use_uncertainty=False, use_aux=True, use_cbam=True),
     "abl_fu_cbam": _NUE.replace(name="abl_fu_cbam", use_uncertainty=True, use_aux=False, use_cbam=True),
     "abl_fu_at": _NUE.replace(name="abl_fu_at", use_uncertainty=True, use_aux=True, use_cbam=False),
-    "fr": _NUE.replace(name="fr", kind="fr", use_uncertainty=False, use_aux=False, use_cbam=False),
-    "nav_a3c": _NUE.replace(name="nav_a3c", kind="nav_a3c", use_uncertainty=False, use_aux=False, use_cbam=False),
+    "fr": _NUE.replace(name="fr", kind="fr", use_uncertainty=False, use_aux=False, use_cbam=False,
+                        goal_in_perception=False),
+    "nav_a3c": _NUE.replace(name="nav_a3c", kind="nav_a3c", use_uncertainty=False, use_aux=False, use_cbam=False,
+                        goal_in_perception=False),
 }
 """Named model configs. The five ``abl_*`` rows and ``nue`` are paper Table I's ablation block."""
 
