@@ -38,6 +38,7 @@ from nue.train.checkpoint import load_policy  # noqa: E402
 from nue.train.compact import QuantizedArray, StepStorage  # noqa: E402
 from nue.train.dataset import DemoSet  # noqa: E402
 from nue.train.episode_file import read_header, write_episode_file  # noqa: E402
+from nue.train.manifest import write_manifest  # noqa: E402
 
 COMPACT = ("rgbd", "i_u", "i_cog")
 
@@ -61,7 +62,7 @@ def compact_copy(data: DemoSet, out: Path, storage: StepStorage) -> tuple[DemoSe
     """Every episode of ``data`` re-encoded with ``storage`` into ``out`` (same manifest); the new DemoSet and the
     absolute error per array against the stored float16 values (max, mean, and the mean |x| for scale)."""
     out.mkdir(parents=True)
-    (out / "manifest.json").write_text(json.dumps(data.manifest))
+    write_manifest(out, data.manifest)
     err = {k: [0.0, 0.0, 0, 0.0] for k in ("i_cog", "rgb", "depth", "i_u")}  # max, sum, count, sum of |x|
     for i, (arrays, meta) in enumerate(zip(data.episodes, data.metas)):
         new = dict(arrays)

@@ -30,7 +30,7 @@ from nue.policy import build_model  # noqa: E402
 from nue.policy.config import get_model_config  # noqa: E402
 from nue.sim.task import get_task  # noqa: E402
 from nue.train.bc import SequenceForward, TrainConfig, class_weights, forward_loss  # noqa: E402
-from nue.train.collect import data_layout  # noqa: E402
+from nue.train.manifest import data_layout  # noqa: E402
 from nue.train.dataset import BufferSampler, DemoSet  # noqa: E402
 from nue.train.episode_file import write_episode_file  # noqa: E402
 

@@ -123,11 +123,16 @@ def test_other_step_never_the_same_step(n):
 def _write_demos(root, houses, eps, steps, cog, rng, encode=True, layout=None):
     from nue.train.episode_file import write_episode_file
 
+    from nue.nerf.config import get_memory
+    from nue.train.manifest import CollectionManifest, DataLayout, write_manifest
+
     fh, fw = 90, 120
-    manifest = {"format": "nue-demos/1", "task": "paper", "memory": {}, "scenes": {f"h{i}": "x" for i in range(houses)},
-                "model_layout": layout or {"frame_size": [fh, fw], "map_size": [45, 60], "max_depth": 5.0, "cog_channels": cog}}
+    layout = layout or {"frame_size": [fh, fw], "map_size": [45, 60], "max_depth": 5.0, "cog_channels": cog}
     root.mkdir(parents=True)
-    (root / "manifest.json").write_text(json.dumps(manifest))
+    write_manifest(root, CollectionManifest(task="paper", memory=get_memory("fast"),
+                                            model_layout=DataLayout.from_dict(layout), split="train",
+                                            scenes={f"h{i}": "x" for i in range(houses)}, episodes_per_bin=eps,
+                                            heldout_per_bin=eps, seed=0))
     for h in range(houses):
         for e in range(eps):
             executed = rng.choice(3, steps, p=[0.5, 0.25, 0.25]).astype(np.int8)

@@ -158,10 +158,20 @@ def test_newer_format_version_is_refused(tmp_path, arrays):
         read_episode_file(p)
 
 
+def _write_manifest(root):
+    from nue.nerf.config import get_memory
+    from nue.train.manifest import CollectionManifest, DataLayout, write_manifest
+
+    write_manifest(root, CollectionManifest(task="paper", memory=get_memory("fast"),
+                                            model_layout=DataLayout.of(get_model_config("nue")), split="train",
+                                            scenes={"h": "0123456789abcdef"}, episodes_per_bin=2, heldout_per_bin=1,
+                                            seed=0))
+
+
 def _demo_folder(root):
     """A collection folder with an empty held-out house ``h``."""
     (root / "heldout" / "h").mkdir(parents=True)
-    (root / "manifest.json").write_text(json.dumps({"task": "paper", "memory": {}, "model_layout": {}}))
+    _write_manifest(root)
     return root
 
 
@@ -213,13 +223,7 @@ def test_old_float16_and_compact_episodes_load_side_by_side(tmp_path):
 # --- nue convert: an old float16 collection re-encoded compactly ------------------------------------------
 def _float16_collection(root, rng):
     """A collection folder as nue wrote it before the compact format: a real manifest, version-1 files."""
-    from nue.nerf.config import get_memory
-    from nue.train.manifest import CollectionManifest, DataLayout, write_manifest
-
-    write_manifest(root, CollectionManifest(task="paper", memory=get_memory("fast"),
-                                            model_layout=DataLayout.of(get_model_config("nue")), split="train",
-                                            scenes={"h": "0123456789abcdef"}, episodes_per_bin=2, heldout_per_bin=1,
-                                            seed=0))
+    _write_manifest(root)
     episodes = {}
     for rel, t in (("train/h/easy_000.nue", 3), ("train/h/easy_001.nue", 2), ("heldout/h/easy_000.nue", 4)):
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -285,3 +289,26 @@ def test_convert_collection_re_encodes_and_resumes(tmp_path, capsys):
     assert exc.value.code == 0
     assert "3 episodes (3 converted now), 9 steps" in capsys.readouterr().out
     assert not isinstance(read_episode_file(tmp_path / "n4/train/h/easy_000.nue")[0]["rgbd"], QuantizedArray)
+
+
+def test_demo_set_reads_typed_manifests_and_refuses_mixed_collections(tmp_path):
+    from nue.train.manifest import CollectionManifest, read_manifest
+
+    rng = np.random.default_rng(6)
+    a, b = tmp_path / "a", tmp_path / "b"
+    _float16_collection(a, rng)
+    _float16_collection(b, rng)
+    data = DemoSet([a, b], "train")
+    assert isinstance(data.manifest, CollectionManifest) and data.manifest == read_manifest(a)
+    assert data.n_episodes == 4 and len(data) == 10
+    data.check_layout(get_model_config("nue"))
+    with pytest.raises(DataError, match=r"a/manifest.json: data layout .* does not fit model 'nue'"):
+        data.check_layout(get_model_config("nue").replace(cog_channels=32))
+    raw = json.loads((b / "manifest.json").read_text())
+    raw["memory"]["train_rays"] = 256
+    (b / "manifest.json").write_text(json.dumps(raw))
+    with pytest.raises(DataError, match=r"b/manifest.json: memory differs from .*a/manifest.json; cannot aggregate"):
+        DemoSet([a, b], "train")
+    (b / "manifest.json").write_text('{"task": "paper"}')
+    with pytest.raises(DataError, match=r"b/manifest.json: not a nue-demos/1 collection manifest"):
+        DemoSet([a, b], "train")

@@ -31,7 +31,6 @@ from nue.policy.config import get_model_config
 from nue.sim.task import get_task
 from nue.train.checkpoint import PolicyHeader, load_checkpoint, policy_meta, save_checkpoint
 from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler, data_roots, swap_maps
-from nue.train.manifest import CollectionManifest, manifest_path
 from nue.train.select import SelectConfig, select_checkpoint
 
 
@@ -238,7 +237,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
         raise DataError(cfg.data, "no usable episode files in train/")
     first = data_roots(cfg.data)[0]
     heldout = DemoSet(first, "heldout", verify=cfg.verify_data) if (first / "heldout").is_dir() else None
-    manifest = CollectionManifest.from_dict(data.manifest, manifest_path(data.root))
+    manifest = data.manifest
     task = get_task(manifest.task)
     model_cfg = get_model_config(cfg.model).for_task(task)
     data.check_layout(model_cfg)

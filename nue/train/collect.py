@@ -39,7 +39,6 @@ from nue.train.collect_job import AgentSpec, CollectJob
 from nue.train.compact import QuantizedArray, StepStorage
 from nue.train.episode_file import read_header, write_episode_file
 from nue.train.manifest import CollectionManifest, DataLayout, read_manifest, write_manifest
-from nue.train.manifest import data_layout  # noqa: F401  (re-exported: nue.train.dataset reads it here)
 
 
 @dataclass(frozen=True)

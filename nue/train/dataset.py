@@ -9,7 +9,6 @@ is truncated or fails its checksum is reported by name and skipped, never silent
 from __future__ import annotations
 
 import dataclasses
-import json
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,9 +18,9 @@ import torch
 
 from nue.errors import DataError
 from nue.policy.inputs import PolicyInput
-from nue.train.collect import data_layout
 from nue.train.compact import QuantizedArray
 from nue.train.episode_file import read_episode_file
+from nue.train.manifest import CollectionManifest, DataLayout, manifest_path, read_manifest
 
 MAP_KEYS = ("i_u", "i_cog")
 
@@ -60,17 +59,14 @@ class DemoSet:
     def __init__(self, roots, part: str = "train", verify: bool = True, max_episodes: int | None = None):
         roots = data_roots(roots)
         self.root = roots[0]
-        manifests = []
-        for root in roots:
-            manifest = root / "manifest.json"
-            if not manifest.is_file():
-                raise DataError(manifest, "no manifest: not a demonstration folder (run `nue collect` first)")
-            manifests.append(json.loads(manifest.read_text()))
+        manifests = [read_manifest(root) for root in roots]
+        for root, m in zip(roots[1:], manifests[1:]):
             for key in _SAME:
-                if manifests[-1].get(key) != manifests[0].get(key):
-                    raise DataError(manifest, f"{key} differs from {roots[0] / 'manifest.json'}; cannot aggregate")
-        self.manifest = manifests[0]
-        self.manifests = manifests
+                if getattr(m, key) != getattr(manifests[0], key):
+                    raise DataError(manifest_path(root), f"{key} differs from {manifest_path(roots[0])}; cannot aggregate")
+        self.manifest: CollectionManifest = manifests[0]
+        """The first folder's manifest."""
+        self.manifests: list[CollectionManifest] = manifests
         files = [f for root in roots for f in sorted((root / part).glob("*/*.nue"))]
         if max_episodes is not None:
             files = files[:max_episodes]
@@ -106,9 +102,10 @@ class DemoSet:
 
     def check_layout(self, model_cfg) -> None:
         """Refuse a model whose input sizes differ from the stored ones."""
-        want, have = data_layout(model_cfg), self.manifest["model_layout"]
+        want, have = DataLayout.of(model_cfg), self.manifest.model_layout
         if want != have:
-            raise DataError(self.root / "manifest.json", f"data layout {have} does not fit model {model_cfg.name!r} ({want})")
+            raise DataError(manifest_path(self.root), f"data layout {have.to_dict()} does not fit model "
+                                                      f"{model_cfg.name!r} ({want.to_dict()})")
 
     def action_counts(self, num_actions: int) -> np.ndarray:
         counts = np.zeros(num_actions, dtype=np.int64)
