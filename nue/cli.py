@@ -7,22 +7,20 @@ with status 2, without a traceback.
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import typer
 
 from nue import cli_args as A
+from nue.cli_config import ConfigOptions, Opt, config_command
 from nue.cli_learn import collect_cmd, convert_cmd, dagger_cmd, select_cmd, train_cmd
 from nue.cli_reproduce import make_set_cmd, reproduce_cmd
-from nue.errors import NueError
 from nue.outputs import check_output_dir, check_output_file
 
-try:  # typer >= 0.26 ships its own copy of click, whose usage errors these are
-    from typer._click import exceptions as click_errors
-except ImportError:  # pragma: no cover - an older typer runs on click itself
-    from click import exceptions as click_errors
+if TYPE_CHECKING:
+    from nue.evaluate.runner import EvalConfig
+    from nue.sim.episode_gen import EpisodeGenConfig
 
 app = typer.Typer(add_completion=False, pretty_exceptions_enable=False, no_args_is_help=True,
                   help="Image-goal navigation with an uncertainty-aware NeRF memory.")
@@ -61,10 +59,11 @@ def scenes_info(folders: list[Path] = typer.Argument(..., help="Scene folders.")
 
 
 @episodes_app.command("generate")
+@config_command
 def episodes_generate(
     scene: Path = typer.Option(..., help="Scene folder (Gibson layout)."),
     out: Path = typer.Option(..., help="Episode file to write."),
-    per_bin: int = typer.Option(10, help="Episodes per difficulty bin."),
+    gen: EpisodeGenConfig = ConfigOptions("nue.sim.episode_gen:EpisodeGenConfig", Opt("per_bin", check=A.positive)),
     seed: int = typer.Option(0, help="Random seed."),
     task: str = typer.Option("paper", help="Task preset: paper, official or habitat."),
     fmt: str = typer.Option("nue", "--format", help="nue (ours), authors, or habitat (habitat-lab's PointNav/ImageNav "
@@ -72,14 +71,13 @@ def episodes_generate(
 ):
     """Sample episodes into the task's difficulty bins."""
     from nue.scene.scene import Scene
-    from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
+    from nue.sim.episode_gen import generate_episodes
     from nue.sim.episodes import save_episodes
 
-    A.positive("--per-bin", per_bin)
     A.choice("--format", fmt, EPISODE_FORMATS)
     check_output_file(out, "the episode file")
     s = Scene.load(scene)
-    eps = generate_episodes(s, task, EpisodeGenConfig(per_bin=per_bin), seed=seed)
+    eps = generate_episodes(s, task, gen, seed=seed)
     save_episodes(out, eps, task, fmt=fmt)
     typer.echo(f"{len(eps)} episodes -> {out}")
 
@@ -170,35 +168,28 @@ app.command("select")(select_cmd)
 app.command("reproduce")(reproduce_cmd)
 
 
+EVAL = ConfigOptions(
+    "nue.evaluate.runner:EvalConfig", Opt("episodes_dir", path=True), Opt("scenes_root", path=True), "task", "seed",
+    Opt("device", check=A.device), "swap_maps", Opt("max_episodes", check=A.non_negative),
+    Opt("max_steps", check=A.non_negative), "skip_invalid")
+
+
 @app.command("eval")
+@config_command
 def eval_cmd(
     method: list[str] = typer.Option(..., "--checkpoint", "-c", help="Checkpoint path, name=path, or 'expert'; repeatable."),
     out: Path = typer.Option(Path("results/records.jsonl"), help="JSON-lines file the records are appended to."),
-    episodes_dir: Path = typer.Option(Path("episodes/val"), help="Folder with one episode file per house."),
-    scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the houses are (generated if missing)."),
-    task: str = typer.Option("paper", help="Task preset."),
-    seed: int = typer.Option(0, help="Base seed."),
+    cfg: EvalConfig = EVAL,
     workers: int = typer.Option(1, help="Parallel local worker processes."),
     ray_address: Optional[str] = typer.Option(None, help="Run episodes as tasks on this Ray cluster."),
-    device: str = typer.Option("cpu", help="cpu or cuda."),
-    swap_maps: bool = typer.Option(False, help="Feed the maps of another episode (control)."),
-    max_episodes: int = typer.Option(0, help="First N episodes per house only (0 = all)."),
-    max_steps: int = typer.Option(0, help="Override the step limit (smoke runs only; 0 = the preset's)."),
-    skip_invalid: bool = typer.Option(False, help="Run the valid episodes and list the invalid ones instead of refusing their file."),
 ):
     """Evaluate checkpoints on the fixed validation episodes (resumes if rerun)."""
     from nue.evaluate.metrics import aggregate, format_table
     from nue.evaluate.report import load_records
-    from nue.evaluate.runner import EvalConfig, run_eval
+    from nue.evaluate.runner import run_eval
 
     A.positive("--workers", workers)
-    A.non_negative("--max-episodes", max_episodes)
-    A.non_negative("--max-steps", max_steps)
-    A.device("--device", device)
     check_output_file(out, "the records file")
-    cfg = EvalConfig(episodes_dir=str(episodes_dir), scenes_root=str(scenes_root), task=task, seed=seed,
-                     device=device, swap_maps=swap_maps, max_episodes=max_episodes, max_steps=max_steps,
-                     skip_invalid=skip_invalid)
     skipped: list = []
     run_eval(method, out, cfg, workers=workers, ray_address=ray_address, skipped=skipped)
     _echo_episode_checks(skipped)
@@ -365,60 +356,10 @@ def view_cmd(
          screenshot_timeout=screenshot_timeout, echo=typer.echo)
 
 
-def usage_problem(exc: click_errors.UsageError, command=None, args: list[str] = ()) -> str:
-    """One line for a usage error of click / typer (unknown option or command, a missing argument, a
-    value that is not a number, ...): ``<command>: <problem> (see '<command> --help')``.
-
-    The command is the error's context, or (for the errors raised without one, such as an option
-    missing its value) the leading words of ``args`` that name subcommands of the click ``command``."""
-    if exc.ctx is not None:
-        path = exc.ctx.command_path
-    else:
-        words = ["nue"]
-        for word in args:
-            command = getattr(command, "commands", {}).get(word)
-            if command is None:
-                break
-            words.append(word)
-        path = " ".join(words)
-    problem = " ".join(exc.format_message().split())
-    return f"{path}: {problem} (see '{path} --help')"
-
-
 def main(argv: list[str] | None = None) -> None:
-    """The ``nue`` console entry point: runs the command line ``argv`` (default ``sys.argv[1:]``).
-
-    Every failure the user can fix is one line on stderr and exit status 2: a usage error found by
-    click (unknown option, missing argument, bad number; its boxed usage text is not shown) as
-    ``error: <command>: <problem>``, bad input as ``error: <file or option>: <problem>``. ``--help``
-    and a bare group (which prints its help) behave as click's. An injected test failure exits 3.
-    """
-    from nue.jobs import InjectedFailure
-
-    args = sys.argv[1:] if argv is None else list(argv)
-    command = typer.main.get_command(app)
-    try:
-        code = command.main(args=args, prog_name="nue", standalone_mode=False)
-    except click_errors.UsageError as exc:
-        if type(exc).__name__ == "NoArgsIsHelpError":  # ``nue`` or ``nue scenes`` alone: its help (as typer does)
-            if exc.format_message().strip():
-                exc.show()
-        else:
-            typer.echo(f"error: {usage_problem(exc, command, args)}", err=True)
-        sys.exit(2)
-    except click_errors.ClickException as exc:
-        typer.echo(f"error: {' '.join(exc.format_message().split())}", err=True)
-        sys.exit(exc.exit_code)
-    except typer.Abort:
-        typer.echo("Aborted!", err=True)
-        sys.exit(1)
-    except NueError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        sys.exit(2)
-    except InjectedFailure as exc:
-        typer.echo(f"stopped: {exc}", err=True)
-        sys.exit(3)
-    sys.exit(code if isinstance(code, int) else 0)  # an int is click's exit code (``--help``: 0, Ctrl-C: 130)
+    """The ``nue`` console entry point: runs the command line ``argv`` (default ``sys.argv[1:]``); a failure the
+    user can fix is one line ``error: ...`` and exit status 2 (:func:`nue.cli_args.run`)."""
+    A.run(app, argv)
 
 
 if __name__ == "__main__":

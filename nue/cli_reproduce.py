@@ -9,16 +9,7 @@ from typing import Optional
 import typer
 
 from nue import cli_args as A
-from nue.errors import ConfigError
 from nue.outputs import check_output_dir, check_output_file
-
-
-def _ints(option: str, text: str) -> tuple[int, ...]:
-    """Comma-separated integers (``"0,3,5"``); :class:`~nue.errors.ConfigError` naming ``option`` otherwise."""
-    try:
-        return tuple(int(v) for v in text.split(",") if v.strip()) if text else ()
-    except ValueError:
-        raise ConfigError(option, f"expected comma-separated integers, got {text!r}") from None
 
 
 def reproduce_cmd(
@@ -63,5 +54,5 @@ def make_set_cmd(
 
     get_episode_set(name)
     check_output_dir(root / name, "the episode set folder")
-    paths = build_episode_set(name, scenes_root, root, _ints("--houses", houses))
+    paths = build_episode_set(name, scenes_root, root, A.ints("--houses", houses))
     typer.echo(f"{len(paths)} episode files -> {root / name}")

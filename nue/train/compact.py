@@ -149,11 +149,12 @@ class StepStorage:
     """
 
     rgbd_bits: int = 8
-    """RGB-D frame (T, 4, fh, fw), values in [0, 1]: 8 bits = at most 1/510 of a channel's range per step."""
+    """Bits of the RGB-D frame (T, 4, fh, fw), values in [0, 1]; 0 = float16; 8 bits = at most 1/510 of a
+    channel's range per step."""
     i_cog_bits: int = 4
-    """Feature map I_cog (T, 64, h, w): 4 bits, a quarter of float16's bytes."""
+    """Bits of the feature map I_cog (T, 64, h, w); 0 = float16; 4 bits = a quarter of float16's bytes."""
     i_u_bits: int = 0
-    """Uncertainty map I_u (T, 1, h, w): float16 (its values span decades; 5 KB a step)."""
+    """Bits of the uncertainty map I_u (T, 1, h, w); 0 = float16 (its values span decades; 5 KB a step)."""
 
     def encode(self, name: str, x) -> np.ndarray | QuantizedArray:
         """``x`` (T, C, H, W) float as ``name`` is stored: a :class:`QuantizedArray`, or float16."""

@@ -33,7 +33,7 @@ class DaggerConfig:
     rounds: int = 2
     """DAgger rounds after the behaviour-cloning round 0."""
     beta0: float = 0.5
-    """Expert-action probability in round r is beta0 ** r."""
+    """Expert-action probability of round 1; round r uses its r-th power (beta0 ** r)."""
     max_factor: float = 3.0
     """Policy control stops at this multiple of the expert's step count; the expert finishes."""
     steps_per_round: int = 1000
