@@ -299,6 +299,11 @@ def _escape_markup(text: str) -> str:
     return text + "\\" if text.endswith("\\") and not text.endswith("\\\\") else text
 
 
+# --- options that are no config's field: where a run happens, not what it computes --------------------
+WORKERS = typer.Option(1, help="Parallel local worker processes.")
+RAY_ADDRESS = typer.Option(None, help="Run episodes as tasks on this Ray cluster (`local`: one of the driver's own).")
+
+
 # --- commands -----------------------------------------------------------------------------------------
 def config_command(fn: Callable) -> Callable:
     """``fn`` as a typer command: each parameter whose default is a :class:`ConfigOptions` becomes that config's

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Optional
 import typer
 
 from nue import cli_args as A
-from nue.cli_config import ConfigOptions, Opt, config_command
+from nue.cli_config import RAY_ADDRESS, WORKERS, ConfigOptions, Opt, config_command
 from nue.errors import ConfigError
 from nue.outputs import check_output_dir, check_output_file
 
@@ -75,8 +75,8 @@ def collect_cmd(
     out: Path = typer.Option(Path("data/demos"), help="Collection folder (episode files + manifest)."),
     scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the generated houses live (made if missing)."),
     cfg: CollectConfig = COLLECT,
-    workers: int = typer.Option(1, help="Parallel local worker processes."),
-    ray_address: Optional[str] = typer.Option(None, help="Run episodes as tasks on this Ray cluster."),
+    workers: int = WORKERS,
+    ray_address: Optional[str] = RAY_ADDRESS,
 ):
     """Collect expert demonstrations with the online NeRF memory (resumes if rerun)."""
     from nue.train.collect import collect

@@ -1,0 +1,179 @@
+"""The ``nue expert``, ``nue eval``, ``nue report`` and ``nue diagnose`` commands (running episodes, Table I,
+closed-loop diagnostics); registered on the app in :mod:`nue.cli`, which handles errors."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Optional
+
+import typer
+
+from nue import cli_args as A
+from nue.cli_config import RAY_ADDRESS, WORKERS, ConfigOptions, Opt, config_command
+from nue.outputs import check_output_dir, check_output_file
+
+if TYPE_CHECKING:
+    from nue.evaluate.runner import EvalConfig
+
+
+def _echo_episode_checks(skipped, snapped: dict | None = None, source=None) -> None:
+    """Print the episodes left out by --skip-invalid, and those whose start or goal was snapped."""
+    if skipped:
+        typer.echo(f"skipped {len(skipped)} invalid episode(s) (--skip-invalid):")
+        for e in skipped:
+            typer.echo(f"  {e}")
+    if snapped:
+        parts = [f"{eid} (start {s.start:.3f} m, goal {s.goal:.3f} m)" for eid, s in snapped.items()]
+        typer.echo(f"{source}: snapped to navigable cells: {', '.join(parts)}")
+
+
+def expert_cmd(
+    scene: Path = typer.Option(..., help="Scene folder."),
+    episodes: Path = typer.Option(..., help="Episode file (ours or the authors' format)."),
+    task: str = typer.Option("paper", help="Task preset."),
+    records: Optional[Path] = typer.Option(None, help="Write one JSON record per episode here."),
+    kind: str = typer.Option("geodesic", help="geodesic (shortest path) or explore (frontier exploration until "
+                             "the goal is in view, then geodesic)."),
+    skip_invalid: bool = typer.Option(False, help="Run the valid episodes and list the invalid ones instead of refusing the file."),
+):
+    """Run the geodesic (or exploring) expert on an episode file and print SR / SPL / DTS."""
+    import json
+
+    from nue.evaluate.metrics import aggregate, format_table
+    from nue.policy.agent import EXPERT_KINDS, ExpertAgent
+    from nue.rollout import run_episode
+    from nue.scene.navgrid import NavGrid
+    from nue.scene.scene import Scene
+    from nue.sim.env import ImageNavEnv
+    from nue.errors import EpisodeError
+    from nue.sim.episodes import read_episodes
+
+    A.choice("--kind", kind, EXPERT_KINDS)
+    if records:
+        check_output_file(records, "the records file")
+    s = Scene.load(scene)
+    nav = NavGrid.from_scene(s)
+    loaded = read_episodes(episodes, s, task, navgrid=nav, skip_invalid=skip_invalid)
+    _echo_episode_checks(loaded.skipped, loaded.snapped, episodes)
+    eps = loaded.episodes
+    if not eps:
+        raise EpisodeError(episodes, "no valid episodes to run")
+    env = ImageNavEnv(s, task, eps, navgrid=nav)
+    agent = ExpertAgent(kind=kind)
+    method = "expert" if kind == "geodesic" else f"expert-{kind}"
+    recs = [run_episode(env, agent, episode_index=i, method=method) for i in range(len(eps))]
+    if records:
+        records.parent.mkdir(parents=True, exist_ok=True)
+        records.write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs))
+    typer.echo(format_table(aggregate(recs)))
+
+
+EVAL = ConfigOptions(
+    "nue.evaluate.runner:EvalConfig", Opt("episodes_dir", path=True), Opt("scenes_root", path=True), "task", "seed",
+    Opt("device", check=A.device), "swap_maps", Opt("max_episodes", check=A.non_negative),
+    Opt("max_steps", check=A.non_negative), "skip_invalid")
+
+
+@config_command
+def eval_cmd(
+    method: list[str] = typer.Option(..., "--checkpoint", "-c", help="Checkpoint path, name=path, or 'expert'; repeatable."),
+    out: Path = typer.Option(Path("results/records.jsonl"), help="JSON-lines file the records are appended to."),
+    cfg: EvalConfig = EVAL,
+    workers: int = WORKERS,
+    ray_address: Optional[str] = RAY_ADDRESS,
+):
+    """Evaluate checkpoints on the fixed validation episodes (resumes if rerun)."""
+    from nue.evaluate.metrics import aggregate, format_table
+    from nue.evaluate.report import load_records
+    from nue.evaluate.runner import run_eval
+
+    A.positive("--workers", workers)
+    check_output_file(out, "the records file")
+    skipped: list = []
+    run_eval(method, out, cfg, workers=workers, ray_address=ray_address, skipped=skipped)
+    _echo_episode_checks(skipped)
+    records = load_records(out)
+    for name in sorted({r.method for r in records}):
+        typer.echo(f"## {name}\n" + format_table(aggregate([r for r in records if r.method == name])))
+
+
+def report_cmd(
+    records: list[Path] = typer.Argument(..., help="Record files (JSON lines) from `nue eval`."),
+    out: Path = typer.Option(Path("results/report"), help="Folder for table.md/.csv/.tex and coverage.png."),
+    results_md: Optional[Path] = typer.Option(None, help="Also write this RESULTS.md."),
+    command: str = typer.Option("", help="The evaluation command, recorded in RESULTS.md."),
+    task: str = typer.Option("paper", help="Task preset of the records (its action ids, for the closed-loop diagnostics)."),
+):
+    """Table I (SR / SPL / DTS per difficulty, CIs, paired differences to NUE) and coverage."""
+    import json
+    import platform
+
+    from nue.evaluate.report import load_records, render_results_md, write_report
+    from nue.viz.coverage import write_coverage_figure
+
+    check_output_dir(out, "the report folder")
+    if results_md:
+        check_output_file(results_md)
+    recs = load_records(*records)
+    paths = {**write_report(recs, out, task=task), **write_coverage_figure(recs, out)}
+    typer.echo((out / "table.md").read_text() if (out / "table.md").is_file() else "")
+    if results_md:
+        meta_path = results_md.parent / f"{results_md.stem}.meta.json"
+        meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {
+            "command": command, "date": "", "commit": "", "machine": f"{platform.machine()}, {os.cpu_count()} CPUs"}
+        results_md.write_text(render_results_md(recs, meta, task))
+        typer.echo(f"wrote {results_md}")
+    typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
+
+
+def diagnose_cmd(
+    records: list[Path] = typer.Option([], "--records", help="Record files (JSON lines) from `nue eval`; repeatable."),
+    method: list[str] = typer.Option([], help="Only these methods (repeatable; default: all)."),
+    checkpoint: Optional[Path] = typer.Option(None, help="With --data: held-out accuracy with intact, mirrored and other-step maps."),
+    data: Optional[Path] = typer.Option(None, help="Collection folder: previous-action probe on its maps (and the map controls)."),
+    part: str = typer.Option("heldout", help="Part of the collection to use (heldout or train)."),
+    task: str = typer.Option("paper", help="Task preset the records' action ids belong to."),
+    max_episodes: int = typer.Option(200, help="Map controls: at most this many episodes."),
+    probe_steps: int = typer.Option(20_000, help="Probe: subsample at most this many steps."),
+    probe_cog: bool = typer.Option(False, help="Probe: add the mean norm of I_cog to the features."),
+    seed: int = typer.Option(0, help="Seed of the other-step maps, the probe's subsample and its shuffled control."),
+    out: Optional[Path] = typer.Option(None, help="Also write everything as JSON here."),
+):
+    """Closed-loop diagnostics from records; map controls and a previous-action probe from demonstrations."""
+    import json
+
+    from nue.errors import ConfigError
+    from nue.evaluate import diagnose as D
+
+    if not records and data is None:
+        raise ConfigError(None, "nothing to diagnose: give --records and/or --data")
+    if checkpoint is not None and data is None:
+        raise ConfigError(checkpoint, "--checkpoint needs --data (the demonstrations to evaluate it on)")
+    A.positive("--max-episodes", max_episodes)
+    A.positive("--probe-steps", probe_steps)
+    if out:
+        check_output_file(out)
+    result: dict = {}
+    if records:
+        diags = D.record_diagnostics(D.read_records(*records), task, method)
+        result["records"] = diags
+        typer.echo("## Closed-loop diagnostics\n\n" + D.format_record_diagnostics(diags))
+    if data is not None:
+        from nue.evaluate import diagnose_maps as M
+        from nue.train.dataset import DemoSet
+
+        demos = DemoSet(data, part, verify=False)
+        if checkpoint is not None:
+            result["map_controls"] = M.map_controls(checkpoint, demos, seed=seed, max_episodes=max_episodes)
+            typer.echo("## Map controls\n\n" + M.format_map_controls(result["map_controls"]))
+        try:
+            result["probe"] = M.previous_action_probe(demos, seed=seed, max_steps=probe_steps, with_cog=probe_cog)
+            typer.echo("## Previous-action probe\n\n" + M.format_probe(result["probe"], D.action_short_names(task)))
+        except M.ProbeUnavailable as exc:
+            result["probe"] = None
+            typer.echo(f"## Previous-action probe\n\nn/a: {exc}\n")
+    if out:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(D.to_jsonable(result), indent=1) + "\n")
+        typer.echo(f"wrote {out}")
