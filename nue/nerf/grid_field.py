@@ -163,8 +163,11 @@ class RowAdam:
     """Adam for a table trained through sparse row gradients, updating only the rows a step touched.
 
     Same update as ``torch.optim.SparseAdam`` (lazy Adam: the moments of untouched rows do not decay),
-    without its sort: duplicate rows of the uncoalesced gradient are summed with ``index_add_`` into a
-    dense buffer and the touched rows found with a boolean mask. ``table (V, C)``.
+    without its sort and without scanning the table: the touched rows are found from the gradient's own
+    indices (each row once, through a per-row stamp), duplicate rows of the uncoalesced gradient are summed
+    with ``index_add_`` in the gradient's order into a buffer of the touched rows only, and the moments and
+    the table are read and written at those rows. Each row's arithmetic is that of a dense Adam step, so the
+    result does not depend on the order in which the rows are found. ``table (V, C)``.
     """
 
     def __init__(self, table: nn.Parameter, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
@@ -172,12 +175,25 @@ class RowAdam:
         # fill_ writes every page now (zeros_like may map them lazily), so steps do not page-fault
         self.exp_avg = torch.empty_like(table, requires_grad=False).fill_(0.0)
         self.exp_avg_sq = torch.empty_like(table, requires_grad=False).fill_(0.0)
-        self.grad_sum = torch.empty_like(table, requires_grad=False).fill_(0.0)
-        self.touched = torch.zeros(table.shape[0], dtype=torch.bool, device=table.device)
+        self._stamp = torch.empty(table.shape[0], dtype=torch.long, device=table.device).fill_(0)
+        self._arange = torch.arange(0, device=table.device)
         self.steps = 0
 
     def zero_grad(self, set_to_none: bool = True) -> None:
         self.table.grad = None
+
+    def _unique_rows(self, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The distinct rows of ``idx (K,)`` (each once, in no particular order) and each entry's position
+        among them: ``(rows (U,), inverse (K,))`` with ``rows[inverse] == idx``. Touches only those rows of
+        the (V,) stamp buffer, never the whole table (no sort, no scan of V)."""
+        k = idx.numel()
+        if self._arange.numel() < k:
+            self._arange = torch.arange(max(k, 2 * self._arange.numel()), device=idx.device)
+        ar = self._arange[:k]
+        self._stamp.index_copy_(0, idx, ar)  # among duplicates one position wins
+        rows = idx[self._stamp.index_select(0, idx) == ar]  # the winning entry of each row
+        self._stamp.index_copy_(0, rows, self._arange[: rows.numel()])
+        return rows, self._stamp.index_select(0, idx)
 
     @torch.no_grad()
     def step(self) -> None:
@@ -190,16 +206,12 @@ class RowAdam:
         else:
             idx = torch.nonzero(g.abs().sum(dim=1)).squeeze(1)
             vals = g[idx]
-        self.grad_sum.index_add_(0, idx, vals)
-        self.touched[idx] = True
-        rows = torch.nonzero(self.touched).squeeze(1)
-        grad = self.grad_sum[rows]
+        rows, inverse = self._unique_rows(idx)
+        grad = torch.zeros(rows.numel(), vals.shape[1], dtype=vals.dtype, device=vals.device).index_add_(0, inverse, vals)
         b1, b2 = self.betas
-        m = self.exp_avg[rows].mul_(b1).add_(grad, alpha=1 - b1)
-        v = self.exp_avg_sq[rows].mul_(b2).addcmul_(grad, grad, value=1 - b2)
-        self.exp_avg[rows] = m
-        self.exp_avg_sq[rows] = v
+        m = self.exp_avg.index_select(0, rows).mul_(b1).add_(grad, alpha=1 - b1)
+        v = self.exp_avg_sq.index_select(0, rows).mul_(b2).addcmul_(grad, grad, value=1 - b2)
+        self.exp_avg.index_copy_(0, rows, m)
+        self.exp_avg_sq.index_copy_(0, rows, v)
         step_size = self.lr * math.sqrt(1 - b2**self.steps) / (1 - b1**self.steps)
-        self.table[rows] -= step_size * m / (v.sqrt() + self.eps)
-        self.grad_sum[rows] = 0.0
-        self.touched[rows] = False
+        self.table.index_copy_(0, rows, self.table.index_select(0, rows).sub_(step_size * m / (v.sqrt() + self.eps)))
