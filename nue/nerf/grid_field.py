@@ -89,6 +89,8 @@ class GridField(nn.Module):
         corner_rows = torch.tensor([i + j * nx + k * nx * ny for k in (0, 1) for j in (0, 1) for i in (0, 1)])
         self.register_buffer("corner_rows", corner_rows, persistent=False)
         self.register_buffer("scale_in", torch.full((3,), self.radius / c.voxel_size), persistent=False)
+        self.register_buffer("grid_offset", -self.lo / c.voxel_size, persistent=False)
+        self.register_buffer("last_base", (self.dims - 1).float(), persistent=False)
         scale = torch.ones(2 + c.code_dim)
         scale[0] = c.density_scale
         self.register_buffer("channel_scale", scale, persistent=False)
@@ -118,18 +120,15 @@ class GridField(nn.Module):
         """Table rows and trilinear weights of the 8 voxel corners around normalised positions
         ``x (P, 3)``: ``(rows (P, 8) int64, weights (P, 8))``; points outside the grid read the last row
         with weight 0. Corner k = 4 dz + 2 dy + dx."""
-        g = torch.addcmul(-self.lo / self.config.voxel_size, x, self.scale_in)
+        g = torch.addcmul(self.grid_offset, x, self.scale_in)  # position in voxels from the grid's low corner
         base = torch.floor(g)
         frac = g - base
-        base = base.long()
-        inside = ((base >= 0) & (base < self.dims - 1)).all(dim=-1)
-        rows = (base * self.strides).sum(dim=-1, keepdim=True) + self.corner_rows  # (P, 8)
-        rows = torch.where(inside[:, None], rows, self.n_corners)
-        f0, f1 = 1.0 - frac, frac
-        wx = torch.stack([f0[:, 0], f1[:, 0]], dim=-1)
-        wy = torch.stack([f0[:, 1], f1[:, 1]], dim=-1)
-        wz = torch.stack([f0[:, 2], f1[:, 2]], dim=-1) * inside[:, None]
-        w = (wz[:, :, None, None] * wy[:, None, :, None] * wx[:, None, None, :]).reshape(-1, 8)
+        inside = ((base >= 0) & (base < self.last_base)).all(dim=-1)
+        low = (base.long() * self.strides).sum(dim=-1, keepdim=True)  # flat row of the low corner
+        rows = torch.where(inside[:, None], low + self.corner_rows, self.n_corners)  # (P, 8)
+        f = torch.stack([1.0 - frac, frac], dim=1)  # (P, 2, 3): weight of the low / high corner per axis
+        wz = f[:, :, 2] * inside[:, None]
+        w = (wz[:, :, None, None] * f[:, None, :, 1, None] * f[:, None, None, :, 0]).reshape(-1, 8)
         return rows, w
 
     def interpolate(self, x: torch.Tensor) -> torch.Tensor:
@@ -139,7 +138,12 @@ class GridField(nn.Module):
         return F.embedding_bag(rows, self.table, per_sample_weights=w, mode="sum", sparse=True)
 
     def forward(self, x: torch.Tensor, d: torch.Tensor) -> FieldOutputs:
-        raw = self.interpolate(x.reshape(-1, 3)) * self.channel_scale
+        return self.from_corners(*self.corners(x.reshape(-1, 3)), x, d)
+
+    def from_corners(self, rows: torch.Tensor, w: torch.Tensor, x: torch.Tensor, d: torch.Tensor) -> FieldOutputs:
+        """``forward(x, d)`` given ``corners(x.reshape(-1, 3))`` computed earlier (they do not depend on the
+        table, so the corners of several training iterations can be found at once)."""
+        raw = F.embedding_bag(rows, self.table, per_sample_weights=w, mode="sum", sparse=True) * self.channel_scale
         density = F.softplus(raw[:, 0] + self.density_shift)
         c = self.config
         if c.variance_max > 0:

@@ -35,6 +35,7 @@ from nue.nerf.rays import (
     MemoryInputError,
     PixelRays,
     RayBundle,
+    RaySamples,
     check_pose,
     depth_guided_samples,
     map_pixels,
@@ -93,6 +94,8 @@ class OnlineNeRF:
         self._load_initial_weights()
         rows, cols = map_pixels(self.camera, self.config.map_height, self.config.map_width)
         self._map_pixels = self._flat_pixels(rows, cols)
+        self._map_dirs = self.pixel_rays.dirs[self._map_pixels]
+        self._map_range_per_z = self.pixel_rays.range_per_z[self._map_pixels]
         self.reset(0)
 
     def _load_initial_weights(self) -> None:
@@ -192,17 +195,25 @@ class OnlineNeRF:
         self._next = (i + 1) % cap
         self._n = min(self._n + 1, cap)
 
-    def _sample_training_rays(self, n_rays: int) -> tuple[RayBundle, torch.Tensor]:
-        """Rays drawn from the replay, each with its own frame's colour: (bundle, rgb (R, 3) in [0, 1])."""
+    def _draw_rays(self, n_rays: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The generator's draws of one iteration's rays: replay slots ``frames (R,)`` and flat pixels ``(R,)``
+        (a ``newest_fraction`` of them from the newest frame, the rest uniform over the replay)."""
         g = self.generator
         n_new = int(round(self.config.newest_fraction * n_rays)) if self._n > 1 else 0
         frames = torch.randint(0, self._n, (n_rays - n_new,), generator=g)
         frames = torch.cat([torch.full((n_new,), self._newest, dtype=torch.long), frames]).to(self.device)
         u = torch.rand(n_rays, generator=g).to(self.device)
         slot = (u * self._n_valid[frames]).long()
-        pix = self._valid[frames, slot]
+        return frames, self._valid[frames, slot]
+
+    def _rays(self, frames: torch.Tensor, pix: torch.Tensor) -> tuple[RayBundle, torch.Tensor]:
+        """Rays through replay pixels, each with its own frame's colour: (bundle, rgb (R, 3) in [0, 1])."""
         bundle = self.pixel_rays.bundle(self._poses[frames], pix, self._ranges[frames, pix])
         return bundle, self._rgb[frames, pix].float() / 255.0
+
+    def _sample_training_rays(self, n_rays: int) -> tuple[RayBundle, torch.Tensor]:
+        """Rays drawn from the replay, each with its own frame's colour: (bundle, rgb (R, 3) in [0, 1])."""
+        return self._rays(*self._draw_rays(n_rays))
 
     # ----------------------------------------------------------------- field evaluation
     def _query(self, bundle: RayBundle, n_samples: int, generator: torch.Generator | None):
@@ -211,6 +222,29 @@ class OnlineNeRF:
         out: FieldOutputs = self.field(pts * (1.0 / self.config.radius), bundle.directions)
         weights, transmittance = compositing_weights(out.density, samples.deltas)
         return samples, out, weights, transmittance
+
+    def _training_batches(self, n_iters: int):
+        """The rays, samples and (grid field) voxel corners of ``n_iters`` iterations, drawn in the order one
+        iteration after the other would draw them (rays, then their jitter) and computed for all at once: none
+        of it depends on the field. Yields per iteration ``(bundle, target, samples, x, corners | None)``."""
+        cfg = self.config
+        n_rays, n_bins = cfg.train_rays, cfg.train_samples + cfg.sampler.free_samples
+        draws = []
+        for _ in range(n_iters):
+            frames, pix = self._draw_rays(n_rays)
+            draws.append((frames, pix, torch.rand((n_rays, n_bins), generator=self.generator).to(self.device)))
+        frames, pix, jitter = (torch.cat(v) for v in zip(*draws))
+        bundle, target = self._rays(frames, pix)
+        samples = depth_guided_samples(bundle.ranges, cfg.train_samples, cfg.sampler, jitter=jitter)
+        pts = bundle.origins[:, None, :] + samples.t[..., None] * bundle.directions[:, None, :]
+        x = pts * (1.0 / cfg.radius)
+        corners = self.field.corners(x.reshape(-1, 3)) if isinstance(self.field, GridField) else None
+        for i in range(n_iters):
+            r = slice(i * n_rays, (i + 1) * n_rays)
+            p = slice(i * n_rays * n_bins, (i + 1) * n_rays * n_bins)
+            yield (RayBundle(bundle.origins[r], bundle.directions[r], bundle.ranges[r]), target[r],
+                   RaySamples(samples.t[r], samples.deltas[r]), x[r],
+                   None if corners is None else (corners[0][p], corners[1][p]))
 
     def update(self, n_iters: int | None = None) -> UpdateStats:
         """Run ``n_iters`` (default: the preset's K) training iterations on rays drawn from the replay."""
@@ -221,9 +255,12 @@ class OnlineNeRF:
         beta_min = self.field.config.beta_min
         tot = nll = dens = 0.0
         self.field.train()
-        for _ in range(n_iters):
-            bundle, target = self._sample_training_rays(cfg.train_rays)
-            samples, out, weights, transmittance = self._query(bundle, cfg.train_samples, self.generator)
+        for bundle, target, samples, x, corners in self._training_batches(n_iters):
+            if corners is None:
+                out: FieldOutputs = self.field(x, bundle.directions)
+            else:
+                out = self.field.from_corners(*corners, x, bundle.directions)
+            weights, transmittance = compositing_weights(out.density, samples.deltas)
             ray_var = render_uncertainty(weights, out.variance) + beta_min
             depth_pred = None
             if cfg.depth_weight > 0:  # expected termination, leftover transmittance ending at the band's far end
@@ -274,25 +311,28 @@ class OnlineNeRF:
         pose = check_pose(pose)
         self._ensure_frame(pose, floor_z)
         if (height, width) == (self.config.map_height, self.config.map_width):
-            pix = self._map_pixels
+            pix, dirs, range_per_z = self._map_pixels, self._map_dirs, self._map_range_per_z
         else:
             pix = self._flat_pixels(*map_pixels(self.camera, height, width))
-        ranges = self.pixel_rays.ranges_from_depth(depth)[pix]
-        bundle = self.pixel_rays.bundle(self.pixel_rays.episode_from_camera(pose, self.frame, floor_z), pix, ranges)
+            dirs, range_per_z = self.pixel_rays.dirs[pix], self.pixel_rays.range_per_z[pix]
         cfg = self.config
         self.field.eval()
         chunk = max(1, cfg.render_chunk // max(cfg.render_samples, 1))
         parts: dict[str, list[torch.Tensor]] = {"i_u": [], "rgb": [], "depth": [], "transmittance": [], "i_cog": []}
-        for s in range(0, pix.numel(), chunk):
-            sub = RayBundle(bundle.origins[s : s + chunk], bundle.directions[s : s + chunk], bundle.ranges[s : s + chunk])
-            samples, out, w, transmittance = self._query(sub, cfg.render_samples, None)
-            parts["i_u"].append(render_uncertainty(w, out.variance, transmittance, cfg.unseen_variance)[:, None])
-            parts["rgb"].append(render_rgb(w, out.rgb))
-            parts["depth"].append(render_depth(w, samples.t)[:, None])
-            parts["transmittance"].append(transmittance[:, None])
-            parts["i_cog"].append(render_features(w, out.feature))
-        maps = {k: torch.cat(v).T.reshape(-1, height, width) for k, v in parts.items()}  # (P, C) chunks -> (C, h, w)
-        maps["depth"] = maps["depth"] / self.pixel_rays.range_per_z[pix].reshape(1, height, width)  # range -> z-depth
+        with torch.inference_mode():
+            ranges = self.pixel_rays.ranges_from_depth(depth, pix)
+            bundle = self.pixel_rays.bundle(self.pixel_rays.episode_from_camera(pose, self.frame, floor_z), pix, ranges, dirs)
+            for s in range(0, pix.numel(), chunk):
+                sub = RayBundle(bundle.origins[s : s + chunk], bundle.directions[s : s + chunk], bundle.ranges[s : s + chunk])
+                samples, out, w, transmittance = self._query(sub, cfg.render_samples, None)
+                parts["i_u"].append(render_uncertainty(w, out.variance, transmittance, cfg.unseen_variance)[:, None])
+                parts["rgb"].append(render_rgb(w, out.rgb))
+                parts["depth"].append(render_depth(w, samples.t)[:, None])
+                parts["transmittance"].append(transmittance[:, None])
+                parts["i_cog"].append(render_features(w, out.feature))
+        # (P, C) chunks -> (C, h, w); built outside inference mode, so the maps are ordinary tensors
+        maps = {k: torch.cat(v).T.reshape(-1, height, width) for k, v in parts.items()}
+        maps["depth"] = maps["depth"] / range_per_z.reshape(1, height, width)  # range -> z-depth
         return MemoryMaps(**maps)
 
     def flops_per_step(self) -> dict[str, float]:

@@ -9,6 +9,7 @@ positions divided by a fixed radius (:class:`EpisodeFrame`), never by scene boun
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -128,19 +129,25 @@ class PixelRays:
         m = frame.episode_from_world() @ world_from_camera(check_pose(pose), self.camera, floor_z)
         return torch.as_tensor(m, dtype=torch.float32, device=self.device)
 
-    def ranges_from_depth(self, depth) -> torch.Tensor:
-        """Surface distance along each pixel's ray, (H * W,) float32; NaN where depth <= 0 or not finite."""
+    def ranges_from_depth(self, depth, pixels: torch.Tensor | None = None) -> torch.Tensor:
+        """Surface distance along each pixel's ray, (H * W,) float32 (or ``(R,)`` at flat ``pixels (R,)``
+        only); NaN where depth <= 0 or not finite."""
         z = torch.as_tensor(np.asarray(depth, dtype=np.float32) if not isinstance(depth, torch.Tensor) else depth)
         z = z.to(self.device, torch.float32).reshape(-1)
         if z.numel() != self.dirs.shape[0]:
             raise MemoryInputError("depth", f"expected {self.camera.height} x {self.camera.width} pixels, got {z.numel()}")
-        r = z * self.range_per_z
+        range_per_z = self.range_per_z
+        if pixels is not None:
+            z, range_per_z = z[pixels], range_per_z[pixels]
+        r = z * range_per_z
         return torch.where(torch.isfinite(r) & (z > 0), r, torch.full_like(r, float("nan")))
 
-    def bundle(self, episode_from_camera: torch.Tensor, pixels: torch.Tensor, ranges: torch.Tensor) -> RayBundle:
+    def bundle(self, episode_from_camera: torch.Tensor, pixels: torch.Tensor, ranges: torch.Tensor,
+               directions: torch.Tensor | None = None) -> RayBundle:
         """Rays through flat pixel indices ``pixels (R,)`` of one frame (transform (4, 4)) or of one frame
-        per ray (transforms (R, 4, 4)); ``ranges (R,)`` is passed through."""
-        d = self.dirs[pixels]
+        per ray (transforms (R, 4, 4)); ``ranges (R,)`` is passed through. ``directions``: ``dirs[pixels]``
+        if the caller keeps them."""
+        d = self.dirs[pixels] if directions is None else directions
         if episode_from_camera.dim() == 2:
             rot, org = episode_from_camera[:3, :3], episode_from_camera[:3, 3]
             return RayBundle(org.expand(d.shape[0], 3), d @ rot.T, ranges)
@@ -153,6 +160,7 @@ def depth_guided_samples(
     n_samples: int,
     config: SamplerConfig,
     generator: torch.Generator | None = None,
+    jitter: torch.Tensor | None = None,
 ) -> RaySamples:
     """Place ``n_samples`` per ray in ``[r - band, r + band]`` around the observed surface distance r.
 
@@ -160,7 +168,8 @@ def depth_guided_samples(
     ``concentration``), clipped to ``>= near``; with ``free_samples = F`` another F bins cover
     ``[near, r - band]``. Rays with NaN range get ``n_samples + F`` bins over ``[near, no_depth_range]``.
     Each sample sits at its bin's centre, or uniformly inside its bin when a ``generator`` is given
-    (stratified sampling, for training). ``deltas`` are the bin widths.
+    (stratified sampling, for training); ``jitter (R, n_samples + F)`` in [0, 1) gives those positions
+    directly (draws made earlier, e.g. with the same generator). ``deltas`` are the bin widths.
 
     Shapes: ``ranges (R,)`` -> ``t, deltas (R, n_samples + F)``.
     Example: r = 2, band = 1, n = 2, p = 1, no jitter -> edges [1, 2, 3], t = [1.5, 2.5], deltas = [1, 1].
@@ -168,22 +177,32 @@ def depth_guided_samples(
     dev = ranges.device
     valid = torch.isfinite(ranges)
     r = torch.where(valid, ranges, torch.zeros_like(ranges))
-    s = torch.linspace(-1.0, 1.0, n_samples + 1, device=dev)
-    s = torch.sign(s) * s.abs() ** config.concentration
-    edges = r[:, None] + config.band * s[None, :]  # (R, n + 1)
+    band_s, fallback = _bin_offsets(n_samples, config, dev)
+    edges = r[:, None] + band_s  # (R, n + 1)
     if config.free_samples > 0:
         lo = torch.clamp(r - config.band, min=config.near)
         u = torch.linspace(0.0, 1.0, config.free_samples + 1, device=dev)[:-1]
         free = config.near + (lo - config.near)[:, None] * u[None, :]
         edges = torch.cat([free, edges], dim=1)
-    n_bins = edges.shape[1] - 1
-    fallback = torch.linspace(config.near, config.no_depth_range, n_bins + 1, device=dev)
-    edges = torch.where(valid[:, None], edges, fallback[None, :])
+    edges = torch.where(valid[:, None], edges, fallback)
     edges = torch.clamp(edges, min=config.near)
     lower, upper = edges[:, :-1], edges[:, 1:]
-    if generator is None:
+    if jitter is not None:
+        u = jitter
+    elif generator is None:
         u = torch.full_like(lower, 0.5)
     else:
         u = torch.rand(lower.shape, generator=generator, device="cpu").to(dev)
     t = lower + (upper - lower) * u
     return RaySamples(t=t, deltas=upper - lower)
+
+
+@functools.lru_cache(maxsize=32)
+def _bin_offsets(n_samples: int, config: SamplerConfig, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """Constants of :func:`depth_guided_samples` (kept; never written): the band's bin edges relative to the
+    surface ``band * sign(s) |s|^p`` (1, n + 1) and the edges of a ray without depth (1, n + F + 1)."""
+    with torch.inference_mode(False):  # ordinary tensors, also when first asked for inside inference mode
+        s = torch.linspace(-1.0, 1.0, n_samples + 1, device=device)
+        s = torch.sign(s) * s.abs() ** config.concentration
+        fallback = torch.linspace(config.near, config.no_depth_range, n_samples + config.free_samples + 1, device=device)
+        return config.band * s[None, :], fallback[None, :]
