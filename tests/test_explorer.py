@@ -57,6 +57,71 @@ def test_seen_geometry_lives_in_sim_and_is_reexported(box_nav, box_renderer):
     assert obstacle[cell(0.71, -2.0)] and not floor[cell(1.5, -2.0)]  # its face; the floor behind it is hidden
 
 
+def _reference_floor_obstacle(depth, pose, cam, grid, floor_z, config):
+    """The seen-cell geometry written out plainly (full back-projection, every cell in range projected)."""
+    from nue.sim.camera import depth_to_points, world_from_camera
+
+    z = np.nan_to_num(np.asarray(depth, dtype=np.float64).reshape(cam.height, cam.width), nan=0.0)
+    pts = depth_to_points(z, pose, cam, floor_z)
+    x0, y0 = float(pose[0]), float(pose[1])
+    near_px = np.hypot(pts[..., 0] - x0, pts[..., 1] - y0) <= config.max_range
+    floor_px = (z > 0) & (np.abs(pts[..., 2] - floor_z) <= config.floor_tolerance) & near_px
+
+    def mark(mask, xy):
+        rc = np.asarray(grid.cell_of(xy)).reshape(-1, 2)
+        ok = (rc >= 0).all(axis=1) & (rc[:, 0] < mask.shape[0]) & (rc[:, 1] < mask.shape[1])
+        mask[rc[ok, 0], rc[ok, 1]] = True
+
+    floor = np.zeros(grid.free.shape, dtype=bool)
+    mark(floor, pts[floor_px][:, :2])
+    rr, cc = np.meshgrid(np.arange(floor.shape[0]), np.arange(floor.shape[1]), indexing="ij")
+    cells = np.stack([rr.ravel(), cc.ravel()], axis=-1)
+    centres = np.asarray(grid.cell_centre(cells))
+    near = np.hypot(centres[:, 0] - x0, centres[:, 1] - y0) <= config.max_range
+    cells, centres = cells[near], centres[near]
+    m = world_from_camera(pose, cam, floor_z)
+    p_cam = (np.c_[centres, np.full(len(centres), floor_z)] - m[:3, 3]) @ m[:3, :3]
+    front = p_cam[:, 2] > 1e-6
+    u = np.floor(cam.fx * p_cam[front, 0] / p_cam[front, 2] + cam.cx).astype(np.int64)
+    v = np.floor(cam.fy * p_cam[front, 1] / p_cam[front, 2] + cam.cy).astype(np.int64)
+    inside = (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+    cells = cells[front][inside]
+    sees = floor_px[v[inside], u[inside]]
+    floor[cells[sees, 0], cells[sees, 1]] = True
+    height = pts[..., 2] - floor_z
+    hit = (z > 0) & (height >= config.obstacle_min_height) & (height <= config.obstacle_max_height) & near_px
+    obstacle = np.zeros(grid.free.shape, dtype=bool)
+    mark(obstacle, pts[hit][:, :2])
+    return floor, obstacle
+
+
+def test_seen_cells_equal_the_plain_geometry_and_the_tracker_the_union(box_nav, box_renderer):
+    """The fast path (world z without the matmul, x/y of the chosen pixels only, cells seen before not
+    projected again) gives exactly the masks of the plain full back-projection, also with NaN / inf / 0 depth."""
+    from nue.evaluate.coverage import CoverageTracker
+    from nue.rollout import StepData
+    from nue.sim import seen
+
+    cam, cfg = box_renderer.camera, seen.CoverageConfig()
+    rng = np.random.default_rng(3)
+    tracker, union, areas = CoverageTracker(cam, box_nav, 0.0), None, []
+    for i in range(12):
+        pose = np.array([rng.uniform(-1.5, 0.3), rng.uniform(-2.8, 1.0), rng.uniform(-np.pi, np.pi)])
+        _, depth = box_renderer.render(pose, 0.0)
+        if i % 3 == 2:
+            depth = depth.copy()
+            depth[:10], depth[10:14], depth[14:16] = np.nan, np.inf, 0.0
+        with np.errstate(over="ignore", invalid="ignore"):  # inf depth overflows in the back-projection
+            floor, obstacle = seen.seen_cells(depth, pose, cam, box_nav, 0.0, cfg)
+            ref_floor, ref_obstacle = _reference_floor_obstacle(depth, pose, cam, box_nav, 0.0, cfg)
+            assert np.array_equal(seen.seen_floor_cells(depth, pose, cam, box_nav, 0.0, cfg), ref_floor)
+            tracker(StepData(i, {"depth": depth, "pose": pose}, None, 0, {}, None))
+        assert np.array_equal(floor, ref_floor) and np.array_equal(obstacle, ref_obstacle)
+        union = ref_floor if union is None else union | ref_floor
+        areas.append(round(seen.cell_area(box_nav) * float(np.count_nonzero(union)), 6))
+    assert np.array_equal(tracker.seen, union) and tracker.areas == areas and areas[-1] > areas[0]
+
+
 def test_explorer_succeeds_on_the_ci_episodes(paper_runs):
     env, runs = paper_runs
     for i, (rec, actions, modes, st) in enumerate(runs):

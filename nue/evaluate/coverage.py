@@ -66,9 +66,15 @@ class CoverageTracker:
     """Seen area after each step so far, m²."""
     seen: np.ndarray | None = None
     """(M, M) bool union of seen cells so far."""
+    _centres: np.ndarray | None = field(default=None, repr=False)
 
     def __call__(self, step) -> None:
-        m = seen_floor_cells(step.obs["depth"], step.obs["pose"], self.camera, self.grid, self.floor_z, self.config)
+        if self._centres is None:  # every cell's centre, once (the frames project only the cells not seen yet)
+            rows, cols = self.grid.free.shape
+            rc = np.stack(np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij"), axis=-1)
+            self._centres = np.asarray(self.grid.cell_centre(rc))
+        m = seen_floor_cells(step.obs["depth"], step.obs["pose"], self.camera, self.grid, self.floor_z, self.config,
+                             known=self.seen, centres=self._centres)
         self.seen = m if self.seen is None else (self.seen | m)
         self.areas.append(round(cell_area(self.grid) * float(np.count_nonzero(self.seen)), 6))
 

@@ -10,12 +10,13 @@ furniture) lands in it (:func:`seen_obstacle_cells`). Grids are (M, M) planning 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
-from nue.sim.camera import depth_to_points, world_from_camera
+from nue.sim.camera import depth_to_points, pixel_directions, world_from_camera
 from nue.sim.task import CameraConfig
 
 
@@ -56,6 +57,48 @@ def cell_area(grid: GridLike) -> float:
     return float(grid.cell) ** 2
 
 
+class _Frame:
+    """One depth frame back-projected as :func:`nue.sim.camera.depth_to_points` does it, lazily: the world z
+    of every pixel, world (x, y) only of the pixels asked for.
+
+    The values are those of the full back-projection, bit for bit. The camera's y axis is the world's -z
+    (level camera), so the matmul's z row has a single non-zero term and equals ``t_z - y_cam`` exactly; x
+    and y come from the same matmul on the chosen rows only (BLAS computes each row on its own: the
+    rows do not depend on which others are in the call; ``tests/test_explorer.py`` checks this against the
+    full back-projection). Depth that would overflow (an inf depth became the largest float in
+    ``nan_to_num``) falls back to the full back-projection.
+    """
+
+    def __init__(self, depth: np.ndarray, pose, camera: CameraConfig, floor_z: float):
+        self.z = np.nan_to_num(np.asarray(depth, dtype=np.float64).reshape(camera.height, camera.width), nan=0.0)
+        self.m = world_from_camera(pose, camera, floor_z)
+        self._dirs = _pixel_directions(camera).reshape(-1, 3)
+        level = self.m[2, 0] == 0.0 and self.m[2, 1] == -1.0 and self.m[2, 2] == 0.0
+        full = not (level and self.z.max() < 1e30)
+        self._points = depth_to_points(self.z, pose, camera, floor_z).reshape(-1, 3) if full else None
+
+    def world_z(self) -> np.ndarray:
+        """(H, W) world z of every pixel's point."""
+        if self._points is not None:
+            return self._points[:, 2].reshape(self.z.shape)
+        return self.m[2, 3] - self._dirs[:, 1].reshape(self.z.shape) * self.z
+
+    def world_xy(self, flat: np.ndarray) -> np.ndarray:
+        """(K, 2) world (x, y) of the pixels with flat indices ``flat (K,)``."""
+        if self._points is not None:
+            return self._points[flat, :2]
+        p_cam = self._dirs[flat] * self.z.reshape(-1)[flat, None]
+        return (p_cam @ self.m[:3, :3].T + self.m[:3, 3])[:, :2]
+
+
+@functools.lru_cache(maxsize=8)
+def _pixel_directions(camera: CameraConfig) -> np.ndarray:
+    """:func:`nue.sim.camera.pixel_directions`, computed once per camera (read-only)."""
+    d = pixel_directions(camera)
+    d.flags.writeable = False
+    return d
+
+
 def _frame_points(depth: np.ndarray, pose, camera: CameraConfig, floor_z: float):
     """(H, W) z-depth with NaN -> 0, and its world points (H, W, 3)."""
     z = np.nan_to_num(np.asarray(depth, dtype=np.float64).reshape(camera.height, camera.width), nan=0.0)
@@ -69,8 +112,20 @@ def _mark(mask: np.ndarray, grid: GridLike, xy: np.ndarray) -> None:
     mask[rc[ok, 0], rc[ok, 1]] = True
 
 
+def _within(dx: np.ndarray, dy: np.ndarray, r: float) -> np.ndarray:
+    """``np.hypot(dx, dy) <= r``, evaluating hypot only where ``dx^2 + dy^2`` is within 1e-9 of ``r^2``
+    (elsewhere the squared distance decides the same way: both are accurate to a few ulp)."""
+    d2 = dx * dx + dy * dy
+    out = d2 <= r * r * (1.0 - 1e-9)
+    edge = ~out & (d2 <= r * r * (1.0 + 1e-9))
+    if edge.any():
+        out[edge] = np.hypot(dx[edge], dy[edge]) <= r
+    return out
+
+
 def seen_floor_cells(depth: np.ndarray, pose, camera: CameraConfig, grid: GridLike, floor_z: float = 0.0,
-                     config: CoverageConfig = CoverageConfig()) -> np.ndarray:
+                     config: CoverageConfig = CoverageConfig(), *, known: np.ndarray | None = None,
+                     centres: np.ndarray | None = None) -> np.ndarray:
     """Grid cells whose floor this depth frame sees: an (M, M) bool mask.
 
     ``depth``: (H, W) or (H, W, 1) z-depth, metres (0 or NaN = no surface), at the camera's
@@ -81,39 +136,58 @@ def seen_floor_cells(depth: np.ndarray, pose, camera: CameraConfig, grid: GridLi
     centre is within ``max_range`` (xy) of the robot, projects (on the floor plane) into the image,
     and the pixel it lands in sees floor (so occluded floor does not count), or when a floor point
     falls inside it. Projecting cell centres leaves no holes where far floor rows are sparse.
+
+    For a caller accumulating the union over frames: ``known`` (M, M) are cells already seen, which are
+    then not projected (they may be missing from the mask, so only ``mask | known`` is the same as
+    without ``known``); ``centres`` (M, M, 2) = ``grid.cell_centre`` of every cell, computed once.
     """
-    z, pts = _frame_points(depth, pose, camera, floor_z)
-    return _floor_mask(z, pts, pose, camera, grid, floor_z, config)
+    return _floor_mask(_Frame(depth, pose, camera, floor_z), pose, camera, grid, floor_z, config, centres, known)
 
 
-def _floor_mask(z, pts, pose, camera: CameraConfig, grid: GridLike, floor_z: float, config: CoverageConfig) -> np.ndarray:
+def _floor_mask(frame: _Frame, pose, camera: CameraConfig, grid: GridLike, floor_z: float, config: CoverageConfig,
+                centres: np.ndarray | None = None, skip: np.ndarray | None = None) -> np.ndarray:
     h, w = camera.height, camera.width
     x0, y0 = float(pose[0]), float(pose[1])
-    floor_px = (z > 0) & (np.abs(pts[..., 2] - floor_z) <= config.floor_tolerance)
-    floor_px &= np.hypot(pts[..., 0] - x0, pts[..., 1] - y0) <= config.max_range
+    floor_px = (frame.z > 0) & (np.abs(frame.world_z() - floor_z) <= config.floor_tolerance)
+    flat = np.flatnonzero(floor_px)
+    xy = frame.world_xy(flat)
+    near = _within(xy[:, 0] - x0, xy[:, 1] - y0, config.max_range)
+    floor_px = np.zeros(h * w, dtype=bool)
+    floor_px[flat[near]] = True
+    floor_px = floor_px.reshape(h, w)
     m_rows, m_cols = grid.free.shape
     mask = np.zeros((m_rows, m_cols), dtype=bool)
     # 1) cells containing a floor point
-    _mark(mask, grid, pts[floor_px][:, :2])
+    _mark(mask, grid, xy[near])
     # 2) cells in range whose centre's floor point projects onto a pixel that sees floor
     lo = np.asarray(grid.cell_of((x0 - config.max_range, y0 - config.max_range)))
     hi = np.asarray(grid.cell_of((x0 + config.max_range, y0 + config.max_range)))
     lo, hi = np.clip(lo, 0, [m_rows - 1, m_cols - 1]), np.clip(hi, 0, [m_rows - 1, m_cols - 1])
-    rr, cc = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
-    cells = np.stack([rr.ravel(), cc.ravel()], axis=-1)
-    centres = np.asarray(grid.cell_centre(cells))
-    near = np.hypot(centres[:, 0] - x0, centres[:, 1] - y0) <= config.max_range
-    cells, centres = cells[near], centres[near]
-    m = world_from_camera(pose, camera, floor_z)
-    p = np.c_[centres, np.full(len(centres), floor_z)]
+    box = (slice(lo[0], hi[0] + 1), slice(lo[1], hi[1] + 1))
+    if centres is not None:
+        box_centres = centres[box]
+    else:
+        rr, cc = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+        box_centres = np.asarray(grid.cell_centre(np.stack([rr, cc], axis=-1)))
+    keep = _within(box_centres[..., 0] - x0, box_centres[..., 1] - y0, config.max_range)
+    if skip is not None:
+        keep &= ~skip[box]
+    sel = np.flatnonzero(keep)
+    m = frame.m
+    p = np.empty((sel.size, 3))
+    p[:, :2] = box_centres.reshape(-1, 2)[sel]
+    p[:, 2] = floor_z
     p_cam = (p - m[:3, 3]) @ m[:3, :3]  # world -> camera (rotation is orthonormal)
-    front = p_cam[:, 2] > 1e-6
-    u = np.floor(camera.fx * p_cam[front, 0] / p_cam[front, 2] + camera.cx).astype(np.int64)
-    v = np.floor(camera.fy * p_cam[front, 1] / p_cam[front, 2] + camera.cy).astype(np.int64)
+    front = np.flatnonzero(p_cam[:, 2] > 1e-6)
+    pf = p_cam[front]
+    u = np.floor(camera.fx * pf[:, 0] / pf[:, 2] + camera.cx).astype(np.int64)
+    v = np.floor(camera.fy * pf[:, 1] / pf[:, 2] + camera.cy).astype(np.int64)
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    cells = cells[front][inside]
-    sees = floor_px[v[inside], u[inside]]
-    mask[cells[sees, 0], cells[sees, 1]] = True
+    sees = np.zeros(front.size, dtype=bool)
+    sees[inside] = floor_px[v[inside], u[inside]]
+    cells = sel[front[sees]]
+    box_cols = hi[1] - lo[1] + 1
+    mask[lo[0] + cells // box_cols, lo[1] + cells % box_cols] = True
     return mask
 
 
@@ -126,21 +200,21 @@ def seen_obstacle_cells(depth: np.ndarray, pose, camera: CameraConfig, grid: Gri
     ``max_range`` (xy) of the robot, falls inside it (the faces of walls and furniture; ceilings
     and door lintels are above the band). A cell may be both floor-seen and obstacle (a wall's foot).
     """
-    z, pts = _frame_points(depth, pose, camera, floor_z)
-    return _obstacle_mask(z, pts, pose, grid, floor_z, config)
+    return _obstacle_mask(_Frame(depth, pose, camera, floor_z), pose, grid, floor_z, config)
 
 
-def _obstacle_mask(z, pts, pose, grid: GridLike, floor_z: float, config: CoverageConfig) -> np.ndarray:
-    height = pts[..., 2] - floor_z
-    hit = (z > 0) & (height >= config.obstacle_min_height) & (height <= config.obstacle_max_height)
-    hit &= np.hypot(pts[..., 0] - float(pose[0]), pts[..., 1] - float(pose[1])) <= config.max_range
+def _obstacle_mask(frame: _Frame, pose, grid: GridLike, floor_z: float, config: CoverageConfig) -> np.ndarray:
+    height = frame.world_z() - floor_z
+    hit = (frame.z > 0) & (height >= config.obstacle_min_height) & (height <= config.obstacle_max_height)
+    xy = frame.world_xy(np.flatnonzero(hit))
+    near = _within(xy[:, 0] - float(pose[0]), xy[:, 1] - float(pose[1]), config.max_range)
     mask = np.zeros(grid.free.shape, dtype=bool)
-    _mark(mask, grid, pts[hit][:, :2])
+    _mark(mask, grid, xy[near])
     return mask
 
 
 def seen_cells(depth: np.ndarray, pose, camera: CameraConfig, grid: GridLike, floor_z: float = 0.0,
                config: CoverageConfig = CoverageConfig()) -> tuple[np.ndarray, np.ndarray]:
     """``(seen_floor_cells(...), seen_obstacle_cells(...))`` of one frame, back-projecting it once."""
-    z, pts = _frame_points(depth, pose, camera, floor_z)
-    return _floor_mask(z, pts, pose, camera, grid, floor_z, config), _obstacle_mask(z, pts, pose, grid, floor_z, config)
+    frame = _Frame(depth, pose, camera, floor_z)
+    return _floor_mask(frame, pose, camera, grid, floor_z, config), _obstacle_mask(frame, pose, grid, floor_z, config)
