@@ -315,6 +315,8 @@ def config_command(fn: Callable) -> Callable:
             groups[p.name] = p.default
             params += p.default.parameters(p.name)
         else:
+            # a postponed annotation ("Optional[Path]") evaluated in the command's module, as typing.get_type_hints
+            # does; the config parameters' own annotations are never evaluated (their classes are imported late)
             annotation = eval(p.annotation, fn.__globals__) if isinstance(p.annotation, str) else p.annotation
             params.append(p.replace(kind=inspect.Parameter.KEYWORD_ONLY, annotation=annotation))
     _refuse_repeated_flags(fn.__name__, params)
