@@ -113,16 +113,21 @@ def colour_head(fc: torch.Tensor, dir_part: torch.Tensor, x: torch.Tensor, d: to
                 density: torch.Tensor, variance: torch.Tensor) -> FieldOutputs:
     """Shared tail of both fields: f_c = ReLU(feature + direction term) (64-d), RGB = sigmoid(linear(f_c)).
 
-    ``fc``: (N, F) per point; ``dir_part``: (R, F) per ray (broadcast over the ray's samples when
+    ``fc``: (N, F) per point (overwritten when no gradient is recorded); ``dir_part``: (R, F) per ray (broadcast over the ray's samples when
     ``d`` has one dim less than ``x``) or per point; ``density``, ``variance``: (N,). Outputs are
     reshaped to ``x.shape[:-1]``.
     """
     batch = x.shape[:-1]
     if d.dim() == x.dim() - 1:  # one direction per ray: broadcast over the ray's samples
-        fc = fc.view(*d.shape[:-1], -1, fc.shape[-1]) + dir_part.unsqueeze(-2)
+        fc, dir_part = fc.view(*d.shape[:-1], -1, fc.shape[-1]), dir_part.unsqueeze(-2)
     else:
-        fc = fc + dir_part.reshape(fc.shape)
-    fc = F.relu(fc.reshape(-1, fc.shape[-1]), inplace=True)
+        dir_part = dir_part.reshape(fc.shape)
+    # without autograd in place (``fc`` is a fresh linear output); with it out of place, as an in-place op on
+    # a view costs autograd a copy of the whole tensor in backward
+    if torch.is_grad_enabled() and fc.requires_grad:
+        fc = F.relu((fc + dir_part).reshape(-1, fc.shape[-1]))
+    else:
+        fc = F.relu(fc.add_(dir_part).reshape(-1, fc.shape[-1]), inplace=True)
     rgb = torch.sigmoid(colour_out(fc))
     return FieldOutputs(
         density=density.reshape(batch),

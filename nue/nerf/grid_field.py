@@ -112,9 +112,9 @@ class GridField(nn.Module):
         return [p for n, p in self.named_parameters() if n != "table"]
 
     def optimizers(self, lr: float, grid_lr: float) -> list:
-        """Fresh optimisers of an episode: Adam (``lr``) on the colour MLP, :class:`RowAdam` (``grid_lr``) on the
-        table's touched rows (its gradients are sparse)."""
-        return [torch.optim.Adam(self.dense_parameters(), lr=lr), RowAdam(self.table, lr=grid_lr)]
+        """Fresh optimisers of an episode: Adam (``lr``, :class:`DenseAdam`) on the colour MLP, :class:`RowAdam`
+        (``grid_lr``) on the table's touched rows (its gradients are sparse)."""
+        return [DenseAdam(self.dense_parameters(), lr=lr), RowAdam(self.table, lr=grid_lr)]
 
     def corners(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Table rows and trilinear weights of the 8 voxel corners around normalised positions
@@ -126,10 +126,12 @@ class GridField(nn.Module):
         inside = ((base >= 0) & (base < self.last_base)).all(dim=-1)
         low = (base.long() * self.strides).sum(dim=-1, keepdim=True)  # flat row of the low corner
         rows = torch.where(inside[:, None], low + self.corner_rows, self.n_corners)  # (P, 8)
-        f = torch.stack([1.0 - frac, frac], dim=1)  # (P, 2, 3): weight of the low / high corner per axis
-        wz = f[:, :, 2] * inside[:, None]
-        w = (wz[:, :, None, None] * f[:, None, :, 1, None] * f[:, None, None, :, 0]).reshape(-1, 8)
-        return rows, w
+        # trilinear weights wz * wy * wx of the 8 corners, computed with the points along the last axis
+        frac = frac.T.contiguous()
+        f = torch.stack([1.0 - frac, frac])  # (2, 3, P): weight of the low / high corner per axis
+        wz = f[:, 2] * inside
+        w = wz[:, None, None, :] * f[None, :, 1, None, :] * f[None, None, :, 0, :]  # (dz, dy, dx, P)
+        return rows, w.reshape(8, -1).T.contiguous()
 
     def interpolate(self, x: torch.Tensor) -> torch.Tensor:
         """Trilinear read of the table at normalised positions ``x (P, 3)`` -> ``(P, 2 + code_dim)``;
@@ -143,7 +145,11 @@ class GridField(nn.Module):
     def from_corners(self, rows: torch.Tensor, w: torch.Tensor, x: torch.Tensor, d: torch.Tensor) -> FieldOutputs:
         """``forward(x, d)`` given ``corners(x.reshape(-1, 3))`` computed earlier (they do not depend on the
         table, so the corners of several training iterations can be found at once)."""
-        raw = F.embedding_bag(rows, self.table, per_sample_weights=w, mode="sum", sparse=True) * self.channel_scale
+        if torch.is_grad_enabled() and self.table.requires_grad:
+            raw = _TrilinearRead.apply(self.table, rows, w)
+        else:
+            raw = F.embedding_bag(rows, self.table, per_sample_weights=w, mode="sum")
+        raw = raw * self.channel_scale
         density = F.softplus(raw[:, 0] + self.density_shift)
         c = self.config
         if c.variance_max > 0:
@@ -161,6 +167,60 @@ class GridField(nn.Module):
         gemm = 2.0 * (c.code_dim * c.feature_dim + c.feature_dim * 3)
         per_ray = 2.0 * self.dir_enc.out_dim * c.feature_dim
         return read + gemm + per_ray / max(samples_per_ray, 1)
+
+
+class _TrilinearRead(torch.autograd.Function):
+    """``embedding_bag(rows, table, per_sample_weights=w, mode="sum", sparse=True)`` with the same forward and
+    the same sparse table gradient as autograd's (entry j of ``rows.reshape(-1)`` gets ``grad[j // 8] * w[j]``,
+    uncoalesced, in that order), formed by one broadcast multiply instead of a row gather and a multiply."""
+
+    @staticmethod
+    def forward(ctx, table: torch.Tensor, rows: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        ctx.save_for_backward(rows, w)
+        ctx.table_shape = table.shape
+        return F.embedding_bag(rows, table, per_sample_weights=w, mode="sum")
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        rows, w = ctx.saved_tensors
+        values = (grad.unsqueeze(1) * w.unsqueeze(2)).reshape(-1, grad.shape[1])
+        table_grad = torch.sparse_coo_tensor(rows.reshape(1, -1), values, ctx.table_shape, check_invariants=False)
+        return table_grad, None, None
+
+
+class DenseAdam:
+    """``torch.optim.Adam`` (default settings: no weight decay, no AMSGrad) with the same arithmetic, op for op,
+    as its single-tensor path on CPU, without the optimiser framework around it (hooks, parameter groups,
+    state dicts): the colour MLP's five small tensors take two steps per environment step, where that
+    framework costs more than the update. A parameter without a gradient is skipped and keeps its own step
+    count, as in Adam.
+    """
+
+    def __init__(self, params, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
+        self.params = list(params)
+        self.lr, self.betas, self.eps = lr, betas, eps
+        self.exp_avg = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
+        self.exp_avg_sq = [torch.zeros_like(p, memory_format=torch.preserve_format) for p in self.params]
+        self.steps = [0] * len(self.params)
+
+    def zero_grad(self, set_to_none: bool = True) -> None:
+        for p in self.params:
+            p.grad = None
+
+    @torch.no_grad()
+    def step(self) -> None:
+        b1, b2 = self.betas
+        for i, (p, m, v) in enumerate(zip(self.params, self.exp_avg, self.exp_avg_sq)):
+            g = p.grad
+            if g is None:
+                continue
+            self.steps[i] += 1
+            step = float(self.steps[i])
+            m.lerp_(g, 1 - b1)
+            v.mul_(b2).addcmul_(g, g, value=1 - b2)
+            step_size = self.lr / (1 - b1**step)
+            denom = (v.sqrt() / (1 - b2**step) ** 0.5).add_(self.eps)
+            p.addcdiv_(m, denom, value=-step_size)
 
 
 class RowAdam:
