@@ -15,7 +15,7 @@ from nue.policy.base import PolicyModel, PolicyOutput, State, angle_l1_loss, det
 from nue.policy.baselines import FRPolicy, NavA3CPolicy
 from nue.policy.blocks import CBAM, ChannelAttention, ConvBranch, ResidualBlock, SpatialAttention
 from nue.policy.config import ABLATION_PRESETS, MODEL_PRESETS, ModelConfig, get_model_config
-from nue.policy.inputs import PolicyInput, prepare_input
+from nue.policy.inputs import PolicyInput, prepare_goal, prepare_input
 from nue.policy.nue_model import FusionHead, NUEPolicy
 
 _KINDS: dict[str, type[PolicyModel]] = {"nue": NUEPolicy, "fr": FRPolicy, "nav_a3c": NavA3CPolicy}
@@ -31,5 +31,5 @@ __all__ = [
     "ABLATION_PRESETS", "CBAM", "ChannelAttention", "ConvBranch", "FRPolicy", "FusionHead", "MODEL_PRESETS",
     "ModelConfig", "NUEPolicy", "NavA3CPolicy", "PolicyInput", "PolicyModel", "PolicyOutput", "ResidualBlock",
     "SpatialAttention", "State", "angle_l1_loss", "build_model", "detach_state", "get_model_config",
-    "prepare_input", "wrap_angle_t",
+    "prepare_goal", "prepare_input", "wrap_angle_t",
 ]

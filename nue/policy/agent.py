@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from nue.policy.base import PolicyModel, choose_actions
-from nue.policy.inputs import prepare_input
+from nue.policy.inputs import prepare_goal, prepare_input
 from nue.sim.env import ImageNavEnv
 from nue.sim.expert import ExpertConfig, GeodesicExpert
 from nue.sim.explorer import ExplorerConfig, ExploringExpert
@@ -71,16 +71,28 @@ class PolicyAgent:
         self.generator = torch.Generator(device="cpu")
         self.last_aux: float | None = None
         self.last_input = None
+        self._goal: tuple[np.ndarray, torch.Tensor] | None = None  # the last goal photo and its prepared tensor
 
     def reset(self, env, obs, seed: int = 0) -> None:
         """New episode: initial recurrent state; action sampling seeded by the episode's ``seed``."""
         self.state = self.model.initial_state(1, self.device)
         self.generator.manual_seed(int(np.random.SeedSequence([seed, 1]).generate_state(1)[0]))
+        self._goal = None
 
     def policy_input(self, obs, maps):
         i_u = getattr(maps, "i_u", None) if maps is not None else None
         i_cog = getattr(maps, "i_cog", None) if maps is not None else None
-        return prepare_input(obs["rgb"], obs["depth"], obs["goal"], i_u, i_cog, self.config, device=self.device)
+        return prepare_input(obs["rgb"], obs["depth"], obs["goal"], i_u, i_cog, self.config, device=self.device,
+                             goal_input=self._goal_input(obs["goal"]))
+
+    def _goal_input(self, goal) -> torch.Tensor | None:
+        """The prepared goal, kept while the photo stays the same (it does for a whole episode)."""
+        if not isinstance(goal, np.ndarray) or goal.ndim != 3:
+            return None
+        kept = self._goal
+        if kept is None or kept[0].dtype != goal.dtype or kept[0].shape != goal.shape or not np.array_equal(kept[0], goal):
+            kept = self._goal = (goal.copy(), prepare_goal(goal, self.config, self.device))
+        return kept[1]
 
     def act(self, obs, maps) -> int:
         inp = self.policy_input(obs, maps)

@@ -131,6 +131,12 @@ def _map_tensor(x, batched: bool, channels: int, device, name: str) -> Tensor:
     return t
 
 
+def prepare_goal(goal, config: ModelConfig, device: torch.device | str | None = None, batched: bool = False) -> Tensor:
+    """The goal part of :func:`prepare_input`: goal RGB ``(H', W', 3)`` (or ``(B, H', W', 3)`` if ``batched``),
+    uint8 or float in [0, 1] -> ``(B, 3, h_g, w_g)`` in [0, 1] at ``config.goal_size``."""
+    return resize_area(_image(goal, batched, device, "goal"), config.goal_size)
+
+
 def prepare_input(
     rgb,
     depth,
@@ -139,6 +145,8 @@ def prepare_input(
     i_cog,
     config: ModelConfig,
     device: torch.device | str | None = None,
+    *,
+    goal_input: Tensor | None = None,
 ) -> PolicyInput:
     """Raw observation + goal + NeRF maps -> a normalised, resized :class:`PolicyInput`.
 
@@ -147,7 +155,8 @@ def prepare_input(
     (1, h, w), ``i_cog`` (64, h, w); gives batch size 1. Images may also be float in [0, 1].
     Batched: the same with a leading B (``rgb`` (B, H, W, 3) marks the call as batched).
     numpy arrays or torch tensors. Maps the config does not use may be None (and are dropped
-    if given); maps it uses are required.
+    if given); maps it uses are required. ``goal_input``: ``prepare_goal(goal, ...)`` computed earlier (the
+    goal photo stays the same for a whole episode); ``goal`` is then not read.
     """
     batched = np.ndim(rgb) == 4 if not isinstance(rgb, Tensor) else rgb.ndim == 4
     rgb_t = _image(rgb, batched, device, "rgb")
@@ -164,7 +173,7 @@ def prepare_input(
     d = d.clamp(0.0, config.max_depth) / config.max_depth
     rgbd = resize_area(torch.cat([rgb_t, d[:, None]], dim=1), config.frame_size)
 
-    goal_t = resize_area(_image(goal, batched, device, "goal"), config.goal_size)
+    goal_t = prepare_goal(goal, config, device, batched) if goal_input is None else goal_input
     if goal_t.shape[0] != b:
         raise ValueError(f"goal: batch {goal_t.shape[0]} does not match rgb batch {b}")
 
