@@ -1,9 +1,14 @@
-"""Shared fixtures: the hand-written box room, its loaded scene/navgrid/renderer, one torch thread."""
+"""Shared fixtures: the hand-written box room, its loaded scene/navgrid/renderer, one torch thread; ``nue_here``
+runs a command line in the test process."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
+import subprocess
 from pathlib import Path
+from unittest import mock
 
 import pytest
 
@@ -43,3 +48,20 @@ def box_renderer(box_scene):
     from nue.sim.renderer import Renderer
 
     return Renderer(box_scene)
+
+
+def nue_here(*args, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """``nue ARGS`` in this process: ``nue.cli.main``, what the console script runs, without the few seconds of
+    a new interpreter importing torch. Returns what ``subprocess.run(..., capture_output=True, text=True)`` would
+    (exit status, stdout, stderr); ``env``: environment variables set for the call."""
+    from nue.cli import main
+
+    argv = [str(a) for a in args]
+    out, err = io.StringIO(), io.StringIO()
+    with mock.patch.dict(os.environ, env or {}), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            main(argv)
+            code = 0
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    return subprocess.CompletedProcess(["nue", *argv], code, out.getvalue(), err.getvalue())

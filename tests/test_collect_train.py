@@ -15,14 +15,29 @@ import pytest
 import torch
 
 from nue.errors import CheckpointError
+from nue.jobs import FAIL_AFTER_ENV
+from nue.nerf.config import MEMORY_PRESETS, get_memory
 from nue.train.collect import CollectConfig, collect
 from nue.train.dataset import DemoSet
 from nue.train.compact import QuantizedArray
 from nue.train.episode_file import read_episode_file, read_header
 
-from .conftest import BOX_ROOM
+from .conftest import BOX_ROOM, nue_here
 
 MAP_KEYS = ("i_u", "i_cog")
+TINY = get_memory("fast").replace(name="tiny", train_rays=32, iters_per_update=1)
+"""The default memory with 1 iteration of 32 rays a step instead of 2 of 512 (its updates were 3/4 of a collection
+step; the reference collection takes a third less time): the maps are training inputs here, their quality does
+not matter, and the code path is the default's."""
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _tiny_memory_preset():
+    """``--memory tiny`` on the command line, for this module's tests (collections store the config itself,
+    so workers, DAgger rounds and training read it from there)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setitem(MEMORY_PRESETS, "tiny", TINY)
+        yield
 
 
 @pytest.fixture(scope="module")
@@ -35,9 +50,9 @@ def houses(tmp_path_factory):
     return dirs
 
 
-def _cli(*args, env_extra=None):
-    env = {**os.environ, **(env_extra or {})}
-    return subprocess.run([sys.executable, "-m", "nue.cli", *map(str, args)], capture_output=True, text=True, env=env)
+def _cli(*args, fail_after: int = 0):
+    """``nue ARGS`` in this process; ``fail_after``: stop after that many episode files (as if killed)."""
+    return nue_here(*args, env={FAIL_AFTER_ENV: str(fail_after)} if fail_after else None)
 
 
 def _files(root: Path) -> dict[str, Path]:
@@ -60,7 +75,7 @@ def _same_episode(a: Path, b: Path) -> None:
 def reference(houses, tmp_path_factory):
     """An uninterrupted single-process collection."""
     out = tmp_path_factory.mktemp("reference") / "demos"
-    cfg = CollectConfig(scene_dirs=tuple(map(str, houses)), episodes_per_bin=1, heldout_per_bin=1)
+    cfg = CollectConfig(scene_dirs=tuple(map(str, houses)), episodes_per_bin=1, heldout_per_bin=1, memory=TINY)
     collect(out, cfg, out.parent / "scenes", workers=1, progress=False)
     return out
 
@@ -70,8 +85,8 @@ def demos(houses, tmp_path_factory):
     """The same collection through the CLI with 2 workers, killed after 3 episodes and rerun."""
     out = tmp_path_factory.mktemp("resumed") / "demos"
     args = ["collect", "--out", out, "--scenes-root", out.parent / "scenes", "--scene", houses[0], "--scene", houses[1],
-            "--episodes-per-bin", 1, "--heldout-per-bin", 1, "--workers", 2]
-    first = _cli(*args, env_extra={"NUE_FAIL_AFTER": "3"})
+            "--episodes-per-bin", 1, "--heldout-per-bin", 1, "--memory", "tiny", "--workers", 2]
+    first = _cli(*args, fail_after=3)
     assert first.returncode == 3, first.stderr
     assert len(_files(out)) == 3
     second = _cli(*args)
@@ -115,7 +130,7 @@ def test_ray_collection_equals_single_process(houses, reference, tmp_path):
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         out = tmp_path / "demos"
-        cfg = CollectConfig(scene_dirs=(str(houses[0]),), episodes_per_bin=1, heldout_per_bin=0)
+        cfg = CollectConfig(scene_dirs=(str(houses[0]),), episodes_per_bin=1, heldout_per_bin=0, memory=TINY)
         collect(out, cfg, tmp_path / "scenes", ray_address="auto", progress=False)
     finally:
         ray.shutdown()
@@ -238,7 +253,6 @@ def test_ddp_two_processes_gloo(demos, tmp_path):
 
 
 def test_checkpoint_embeds_presets_and_refuses_mismatches(demos, tmp_path):
-    from nue.nerf.config import get_memory
     from nue.sim.task import get_task
     from nue.train.bc import TrainConfig, train
     from nue.train.checkpoint import PolicyHeader, check_compatible, load_checkpoint, load_policy
@@ -246,12 +260,12 @@ def test_checkpoint_embeds_presets_and_refuses_mismatches(demos, tmp_path):
 
     res = train(TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=2, batch_size=4, eval_every=2), progress=False)
     model, header = load_policy(res.best)
-    assert header.task == "paper" and header.memory == get_memory("fast") and header.model == model.config
+    assert header.task == "paper" and header.memory == TINY and header.model == model.config
     assert header.manifest_hash == read_manifest(demos).hash() and set(header.scenes) == {"room_a", "room_b"}
     ckpt = load_checkpoint(res.best)
     assert ckpt["memory_init"] and PolicyHeader.from_dict(header.to_dict()) == header
     assert {k: ckpt[k] for k in header.to_dict()} == header.to_dict()  # the file holds exactly the header's entries
-    check_compatible(header, res.best, get_task("paper"), get_memory("fast"), {"room_a": header.scenes["room_a"]})
+    check_compatible(header, res.best, get_task("paper"), TINY, {"room_a": header.scenes["room_a"]})
     with pytest.raises(CheckpointError, match="trained for task preset 'paper'"):
         check_compatible(header, res.best, task=get_task("habitat"))
     with pytest.raises(CheckpointError, match="memory preset differs"):
@@ -260,9 +274,13 @@ def test_checkpoint_embeds_presets_and_refuses_mismatches(demos, tmp_path):
         check_compatible(header, res.best, scenes={"room_a": "0000000000000000"})
 
 
+MAX_FACTOR = 1
+"""Policy control of the DAgger rollouts below: at most 1 x the expert's steps (default 3 x), then the expert."""
+
+
 def test_dagger_round_collects_policy_rollouts_labelled_by_the_expert(demos, houses, tmp_path):
     res = _cli("dagger", "--data", demos, "--out", tmp_path / "run", "--steps", 4, "--batch-size", 8, "--eval-every", 4,
-               "--rounds", 1, "--round-steps", 2, "--scene", houses[0], "--scene", houses[1],
+               "--rounds", 1, "--round-steps", 2, "--max-factor", MAX_FACTOR, "--scene", houses[0], "--scene", houses[1],
                "--scenes-root", tmp_path / "scenes")
     assert res.returncode == 0, res.stderr[-2000:]
     rounds = json.loads((tmp_path / "run" / "dagger.json").read_text())
@@ -277,7 +295,7 @@ def test_dagger_round_collects_policy_rollouts_labelled_by_the_expert(demos, hou
         arrays, meta = read_episode_file(path)
         mixed += int((arrays["action"] != arrays["executed"]).sum())
         expert_steps = read_episode_file(demos / path.relative_to(dagger_dir))[1]["steps"]
-        assert meta["steps"] <= 3 * expert_steps + 200  # policy capped at 3x, then the expert finishes
+        assert meta["steps"] <= MAX_FACTOR * expert_steps + 200  # policy capped at 1x, then the expert finishes
     assert mixed > 0  # some executed actions were the policy's, labelled with the expert's
     from nue.train.checkpoint import load_checkpoint
 
@@ -291,8 +309,8 @@ def test_dagger_from_a_given_checkpoint_counts_rollouts_against_the_round_budget
     start = train(TrainConfig(data=str(demos), out=str(tmp_path / "bc"), steps=2, batch_size=4, eval_every=2),
                   progress=False).best
     res = _cli("dagger", "--data", demos, "--out", tmp_path / "run", "--batch-size", 8, "--eval-every", 1000,
-               "--rounds", 1, "--round-steps", 1000, "--start", start, "--episodes-per-bin", 1,
-               "--time-budget", 0.01, "--scene", houses[0], "--scene", houses[1], "--scenes-root", tmp_path / "scenes")
+               "--rounds", 1, "--round-steps", 1000, "--start", start, "--episodes-per-bin", 1, "--max-factor", MAX_FACTOR,
+               "--time-budget", 0.01, "--scene", houses[0], "--scenes-root", tmp_path / "scenes")  # one house: 3 rollouts
     assert res.returncode == 0, res.stderr[-2000:]
     rounds = json.loads((tmp_path / "run" / "dagger.json").read_text())
     assert rounds[0]["given"] and rounds[0]["best"] == str(start) and not (tmp_path / "run" / "round_0").exists()

@@ -4,13 +4,11 @@ duplicates, the swapped-maps control, and refusal of a mismatched checkpoint."""
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 
 import pytest
 import torch
 
+from nue.jobs import FAIL_AFTER_ENV
 from nue.nerf.config import get_memory
 from nue.policy import build_model
 from nue.policy.config import get_model_config
@@ -19,7 +17,7 @@ from nue.sim.episodes import save_episodes
 from nue.sim.task import get_task
 from nue.train.checkpoint import policy_meta, save_checkpoint
 
-from .conftest import FIXTURES
+from .conftest import FIXTURES, nue_here
 
 
 @pytest.fixture(scope="module")
@@ -39,9 +37,9 @@ def _checkpoint(path, task="paper", scenes=None):
     return save_checkpoint(path, {**meta, "model_state": model.state_dict(), "step": 0})
 
 
-def _eval(*args, env_extra=None):
-    env = {**os.environ, **(env_extra or {})}
-    return subprocess.run([sys.executable, "-m", "nue.cli", "eval", *map(str, args)], capture_output=True, text=True, env=env)
+def _eval(*args, fail_after: int = 0):
+    """``nue eval ARGS`` in this process; ``fail_after``: stop after that many records (as if killed)."""
+    return nue_here("eval", *args, env={FAIL_AFTER_ENV: str(fail_after)} if fail_after else None)
 
 
 def test_eval_writes_records_and_resumes_without_duplicates(tmp_path, episodes_dir):
@@ -49,7 +47,7 @@ def test_eval_writes_records_and_resumes_without_duplicates(tmp_path, episodes_d
     out = tmp_path / "records.jsonl"
     args = ["-c", "expert", "-c", f"nue={ckpt}", "--out", out, "--episodes-dir", episodes_dir, "--scenes-root", FIXTURES,
             "--max-steps", 40]
-    first = _eval(*args, env_extra={"NUE_FAIL_AFTER": "1"})
+    first = _eval(*args, fail_after=1)
     assert first.returncode == 3, first.stderr
     assert len(out.read_text().splitlines()) == 1
     with open(out, "a") as f:

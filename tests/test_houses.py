@@ -18,19 +18,26 @@ from nue.sim.env import ImageNavEnv
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.renderer import Renderer
 
+from .conftest import nue_here
+
+
+HOUSES = (("val", 3), ("train", 5))
+
 
 @pytest.fixture(scope="module")
 def houses(tmp_path_factory):
     root = tmp_path_factory.mktemp("houses")
-    return [generate_house(SPLITS[split][i], root / f"{split}_{i:02d}") for split, i in (("val", 3), ("train", 5))]
+    return [generate_house(SPLITS[split][i], root / f"{split}_{i:02d}") for split, i in HOUSES]
 
 
 def test_regenerating_two_houses_reproduces_their_content_hashes(houses, tmp_path):
-    code = "import sys; from nue.scene.generator import generate_house; generate_house(int(sys.argv[1]), sys.argv[2])"
-    for folder, (split, i) in zip(houses, (("val", 3), ("train", 5))):
-        again = tmp_path / folder.name
-        subprocess.run([sys.executable, "-c", code, str(SPLITS[split][i]), str(again)], check=True)
-        assert Scene.load(again).content_hash == Scene.load(folder).content_hash
+    """Both houses again in one other process (another hash seed, a fresh interpreter)."""
+    code = ("import sys; from nue.scene.generator import generate_house\n"
+            "for seed, out in zip(sys.argv[1::2], sys.argv[2::2]): generate_house(int(seed), out)")
+    args = [str(a) for (split, i), folder in zip(HOUSES, houses) for a in (SPLITS[split][i], tmp_path / folder.name)]
+    subprocess.run([sys.executable, "-c", code, *args], check=True)
+    for folder in houses:
+        assert Scene.load(tmp_path / folder.name).content_hash == Scene.load(folder).content_hash
 
 
 def test_expert_succeeds_on_a_ci_episode_set(houses):
@@ -49,9 +56,8 @@ def test_expert_succeeds_on_a_ci_episode_set(houses):
 
 
 def test_scenes_generate_cli_makes_14_loadable_val_scenes(tmp_path):
-    res = subprocess.run([sys.executable, "-m", "nue.cli", "scenes", "generate", "--split", "val", "--out", str(tmp_path)],
-                         capture_output=True, text=True)
-    assert res.returncode == 0, res.stderr
+    res = nue_here("scenes", "generate", "--split", "val", "--out", tmp_path)
+    assert res.returncode == 0 and "14 scenes in" in res.stdout, res.stderr
     folders = sorted(p for p in tmp_path.iterdir() if p.is_dir())
     assert [p.name for p in folders] == [f"val_{i:02d}" for i in range(14)]
     hashes = {Scene.load(p).content_hash for p in folders}
@@ -59,8 +65,7 @@ def test_scenes_generate_cli_makes_14_loadable_val_scenes(tmp_path):
 
 
 def test_demo_writes_figures_and_table(tmp_path):
-    res = subprocess.run([sys.executable, "-m", "nue.cli", "demo", "--out", str(tmp_path / "demo"), "--max-steps", "60"],
-                         capture_output=True, text=True)
+    res = nue_here("demo", "--out", tmp_path / "demo", "--max-steps", 20)
     assert res.returncode == 0, res.stderr
     names = ["topdown.png", "metrics.md", "records.jsonl"]
     names += [f"{kind}_{d}.{ext}" for d in ("easy", "medium", "hard")

@@ -455,24 +455,29 @@ def _settle_batchnorm(model: nn.Module, inp: PolicyInput, sequence: PolicyInput 
         bn.momentum = 0.1
 
 
-def test_nue_overfits_64_samples():
+def test_nue_overfits_32_samples():
+    """The full-size model memorises 32 random samples (labels and goal angles) in about 20 iterations."""
     cfg = get_model_config("nue")
     torch.manual_seed(0)
     model = build_model(cfg)
     gen = torch.Generator().manual_seed(6)
-    inp = random_input(cfg, 64, gen)
-    labels = torch.randint(0, cfg.num_actions, (64,), generator=gen)
-    angles = torch.rand(64, generator=gen) * 2 * math.pi - math.pi
+    n = 32  # 64 took 34 iterations of twice the cost: 4 x the time for the same check
+    inp = random_input(cfg, n, gen)
+    labels = torch.randint(0, cfg.num_actions, (n,), generator=gen)
+    angles = torch.rand(n, generator=gen) * 2 * math.pi - math.pi
     opt = torch.optim.AdamW(model.parameters(), lr=2e-3)
     model.train()
+    fitted = []
     for _ in range(150):
         out = model(inp)
         loss = F.cross_entropy(out.logits, labels) + 0.5 * angle_l1_loss(out.aux_angle, angles)
         opt.zero_grad()
         loss.backward()
         opt.step()
-        if (out.logits.argmax(-1) == labels).float().mean() == 1.0 and loss.item() < 0.1:
+        fitted.append((out.logits.argmax(-1) == labels).float().mean().item())
+        if fitted[-1] == 1.0 and loss.item() < 0.1:
             break
+    assert fitted[0] < 0.6  # untrained: near chance (1/3)
     _settle_batchnorm(model, inp)
     model.eval()
     with torch.no_grad():

@@ -19,8 +19,8 @@ from nue.rollout import run_episode
 from nue.sim.env import ImageNavEnv
 from nue.sim.episodes import Episode, Snap, read_episodes, validate_episode
 
-from .conftest import BOX_ROOM
-from .test_cli import assert_clean_error, nue
+from .conftest import BOX_ROOM, nue_here
+from .test_cli import assert_clean_error
 
 NEAR_WALL = (2.81, 0.025)  # 0.19 m from the east wall face
 IN_WALL = (3.6, 0.025)  # 0.6 m beyond the east wall face (inside the wall / outside the room)
@@ -92,13 +92,13 @@ def test_two_bad_episodes_are_named_together(tmp_path, box_scene, box_nav):
 
 def test_cli_goal_inside_a_wall_is_a_one_line_error(tmp_path):
     p = _authors_file(tmp_path / "eps.json", [((0.0, 0.025), IN_WALL)])
-    assert_clean_error(nue("expert", "--scene", BOX_ROOM, "--episodes", p), "eps.json", "episode 0", "inside an obstacle")
+    assert_clean_error(nue_here("expert", "--scene", BOX_ROOM, "--episodes", p), "eps.json", "episode 0", "inside an obstacle")
 
 
 def test_cli_skip_invalid_runs_the_rest_and_lists_the_skipped(tmp_path):
     p = _authors_file(tmp_path / "eps.json", [((0.0, 0.025), NEAR_WALL), ((0.0, 0.0), IN_WALL), ((-1.0, 0.0), (2.0, 2.0))])
-    assert_clean_error(nue("expert", "--scene", BOX_ROOM, "--episodes", p), "2 invalid episodes", "episode 1", "episode 2")
-    res = nue("expert", "--scene", BOX_ROOM, "--episodes", p, "--skip-invalid")
+    assert_clean_error(nue_here("expert", "--scene", BOX_ROOM, "--episodes", p), "2 invalid episodes", "episode 1", "episode 2")
+    res = nue_here("expert", "--scene", BOX_ROOM, "--episodes", p, "--skip-invalid")
     assert res.returncode == 0, res.stderr
     assert "skipped 2 invalid episode(s)" in res.stdout
     assert f"{p}: episode 1: goal" in res.stdout and f"{p}: episode 2: start" in res.stdout

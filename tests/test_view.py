@@ -25,7 +25,7 @@ from nue.viz.view import ReplaySource, ViewConfig, find_record, view
 from nue.viz.view_scene import TRAJECTORY_COLOUR
 from nue.viz.view_shot import find_chromium, has_colour, png_pixels, shows_content
 
-from .conftest import BOX_ROOM, FIXTURES
+from .conftest import BOX_ROOM, FIXTURES, nue_here
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +59,8 @@ def _free_port() -> int:
 
 
 def _nue(*args, timeout=240):
+    """``nue ARGS`` as a process of its own (a served page and its web server end with it; the runs that serve
+    nothing use ``nue_here``)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     return subprocess.run([sys.executable, "-m", "nue.cli", *map(str, args)], capture_output=True, text=True,
                           env=env, timeout=timeout)
@@ -108,8 +110,8 @@ def test_export_of_a_policy_run_opens_with_reader_and_holds_every_view(tmp_path,
     eps_path, _ = episode_file
     rrd = tmp_path / "live.rrd"
     ckpt = _checkpoint(tmp_path / "nue.pt")
-    run = _nue("view", "--scene", BOX_ROOM, "--episodes", eps_path, "--max-steps", 6, "--checkpoint", ckpt,
-               "--no-serve", "--save", rrd)
+    run = nue_here("view", "--scene", BOX_ROOM, "--episodes", eps_path, "--max-steps", 6, "--checkpoint", ckpt,
+                    "--no-serve", "--save", rrd)
     assert run.returncode == 0, run.stderr
     assert "nue: " in run.stdout and f"recording: {rrd}" in run.stdout
     entities = {c.entity_path for c in RrdReader(rrd).stream()}
@@ -129,8 +131,7 @@ def test_taken_port_is_a_one_line_error(episode_file):
         s.bind(("0.0.0.0", 0))
         s.listen()
         port = s.getsockname()[1]
-        run = _nue("view", "--scene", BOX_ROOM, "--episodes", eps_path, "--port", port, "--grpc-port", _free_port(),
-                   timeout=60)
+        run = nue_here("view", "--scene", BOX_ROOM, "--episodes", eps_path, "--port", port, "--grpc-port", _free_port())
     assert run.returncode == 2
     assert run.stderr.strip() == f"error: --port: port {port} is taken (another program listens there); choose another"
 
