@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -13,6 +11,8 @@ import torch
 from nue.evaluate import diagnose as D
 from nue.evaluate import diagnose_maps as M
 from nue.sim.record import EpisodeRecord, Trajectory
+
+from .conftest import nue_here
 
 F, L, R = 0, 1, 2  # the `paper` preset's action ids
 
@@ -223,10 +223,6 @@ def test_map_controls(model_demos):
 
 
 # --- CLI ----------------------------------------------------------------------------------------
-def nue(*args):
-    return subprocess.run([sys.executable, "-m", "nue.cli", *map(str, args)], capture_output=True, text=True)
-
-
 def assert_clean_error(res, *fragments):
     assert res.returncode == 2, res.stderr
     assert "Traceback" not in res.stderr + res.stdout
@@ -240,18 +236,18 @@ def test_cli_diagnose_records(tmp_path):
     path, out = tmp_path / "r.jsonl", tmp_path / "d.json"
     recs = [rec(*EP1), rec(*EP2, i=1), rec([], [], method="fr", trajectory=False)]
     path.write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs))
-    res = nue("diagnose", "--records", path, "--method", "nue", "--out", out)
+    res = nue_here("diagnose", "--records", path, "--method", "nue", "--out", out)
     assert res.returncode == 0, res.stderr
     assert "| NUE (full) | 2 | 13 | 2.00 | 0.308 | 33.3 | 33.3 (3) | 50.0 |" in res.stdout and "| FR |" not in res.stdout
     assert json.loads(out.read_text())["records"]["nue"]["turns"] == 6
     bad = tmp_path / "bad.jsonl"
     bad.write_text(path.read_text() + "{not json\n")
-    assert_clean_error(nue("diagnose", "--records", bad), str(bad), "line 4: not JSON")
-    assert_clean_error(nue("diagnose", "--records", tmp_path / "missing.jsonl"), "missing.jsonl")
+    assert_clean_error(nue_here("diagnose", "--records", bad), str(bad), "line 4: not JSON")
+    assert_clean_error(nue_here("diagnose", "--records", tmp_path / "missing.jsonl"), "missing.jsonl")
     broken = json.loads(path.read_text().splitlines()[0])
     broken["extra"]["trajectory"]["poses"] = "AAA"
     bad.write_text(json.dumps(broken) + "\n")
-    assert_clean_error(nue("diagnose", "--records", bad), "line 1: bad trajectory")
+    assert_clean_error(nue_here("diagnose", "--records", bad), "line 1: bad trajectory")
 
 
 def test_cli_diagnose_data_and_checkpoint(model_demos, tmp_path):
