@@ -11,6 +11,7 @@ furniture) lands in it (:func:`seen_obstacle_cells`). Grids are (M, M) planning 
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -70,7 +71,8 @@ class _Frame:
     """
 
     def __init__(self, depth: np.ndarray, pose, camera: CameraConfig, floor_z: float):
-        self.z = np.nan_to_num(np.asarray(depth, dtype=np.float64).reshape(camera.height, camera.width), nan=0.0)
+        z = np.array(depth, dtype=np.float64).reshape(camera.height, camera.width)
+        self.z = np.nan_to_num(z, copy=False, nan=0.0)
         self.m = world_from_camera(pose, camera, floor_z)
         self._dirs = _pixel_directions(camera).reshape(-1, 3)
         level = self.m[2, 0] == 0.0 and self.m[2, 1] == -1.0 and self.m[2, 2] == 0.0
@@ -123,6 +125,21 @@ def _within(dx: np.ndarray, dy: np.ndarray, r: float) -> np.ndarray:
     return out
 
 
+def _view_box(pose, camera: CameraConfig, radius: float):
+    """World ``((x_lo, y_lo), (x_hi, y_hi))`` around every floor point within ``radius`` (xy) of the camera
+    whose bearing lies within the image's horizontal field of view (+ 0.01 rad), or None if that field is
+    too wide to bound this way."""
+    half = math.atan(max(camera.cx, camera.width - camera.cx) / camera.fx) + 0.01
+    if half >= math.pi / 2:
+        return None
+    x0, y0, yaw = float(pose[0]), float(pose[1]), float(pose[2])
+    angles = [yaw - half, yaw + half]
+    angles += [k * math.pi / 2 for k in range(4) if abs(math.remainder(k * math.pi / 2 - yaw, 2 * math.pi)) <= half]
+    xs = [x0] + [x0 + radius * math.cos(t) for t in angles]
+    ys = [y0] + [y0 + radius * math.sin(t) for t in angles]
+    return (min(xs), min(ys)), (max(xs), max(ys))
+
+
 def seen_floor_cells(depth: np.ndarray, pose, camera: CameraConfig, grid: GridLike, floor_z: float = 0.0,
                      config: CoverageConfig = CoverageConfig(), *, known: np.ndarray | None = None,
                      centres: np.ndarray | None = None) -> np.ndarray:
@@ -163,6 +180,12 @@ def _floor_mask(frame: _Frame, pose, camera: CameraConfig, grid: GridLike, floor
     lo = np.asarray(grid.cell_of((x0 - config.max_range, y0 - config.max_range)))
     hi = np.asarray(grid.cell_of((x0 + config.max_range, y0 + config.max_range)))
     lo, hi = np.clip(lo, 0, [m_rows - 1, m_cols - 1]), np.clip(hi, 0, [m_rows - 1, m_cols - 1])
+    view = _view_box(pose, camera, config.max_range)
+    if view is not None:  # only cells in the field of view can project into the image
+        lo = np.maximum(lo, np.asarray(grid.cell_of(view[0])) - 1)
+        hi = np.minimum(hi, np.asarray(grid.cell_of(view[1])) + 1)
+        if (hi < lo).any():
+            return mask
     box = (slice(lo[0], hi[0] + 1), slice(lo[1], hi[1] + 1))
     if centres is not None:
         box_centres = centres[box]
