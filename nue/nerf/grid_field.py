@@ -236,12 +236,22 @@ class RowAdam:
 
     def __init__(self, table: nn.Parameter, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
         self.table, self.lr, self.betas, self.eps = table, lr, betas, eps
-        # fill_ writes every page now (zeros_like may map them lazily), so steps do not page-fault
-        self.exp_avg = torch.empty_like(table, requires_grad=False).fill_(0.0)
-        self.exp_avg_sq = torch.empty_like(table, requires_grad=False).fill_(0.0)
+        # both moments of a row side by side (one gather and one scatter per step); fill_ writes every page
+        # now (zeros may map them lazily), so steps do not page-fault
+        self._moments = torch.empty((table.shape[0], 2, table.shape[1]), dtype=table.dtype, device=table.device).fill_(0.0)
         self._stamp = torch.empty(table.shape[0], dtype=torch.long, device=table.device).fill_(0)
         self._arange = torch.arange(0, device=table.device)
         self.steps = 0
+
+    @property
+    def exp_avg(self) -> torch.Tensor:
+        """(V, C) first moments (a view)."""
+        return self._moments[:, 0]
+
+    @property
+    def exp_avg_sq(self) -> torch.Tensor:
+        """(V, C) second moments (a view)."""
+        return self._moments[:, 1]
 
     def zero_grad(self, set_to_none: bool = True) -> None:
         self.table.grad = None
@@ -273,9 +283,11 @@ class RowAdam:
         rows, inverse = self._unique_rows(idx)
         grad = torch.zeros(rows.numel(), vals.shape[1], dtype=vals.dtype, device=vals.device).index_add_(0, inverse, vals)
         b1, b2 = self.betas
-        m = self.exp_avg.index_select(0, rows).mul_(b1).add_(grad, alpha=1 - b1)
-        v = self.exp_avg_sq.index_select(0, rows).mul_(b2).addcmul_(grad, grad, value=1 - b2)
-        self.exp_avg.index_copy_(0, rows, m)
-        self.exp_avg_sq.index_copy_(0, rows, v)
+        moments = self._moments.index_select(0, rows)
+        m, v = moments[:, 0], moments[:, 1]
+        m.mul_(b1).add_(grad, alpha=1 - b1)
+        v.mul_(b2).addcmul_(grad, grad, value=1 - b2)
+        self._moments.index_copy_(0, rows, moments)
         step_size = self.lr * math.sqrt(1 - b2**self.steps) / (1 - b1**self.steps)
-        self.table.index_copy_(0, rows, self.table.index_select(0, rows).sub_(step_size * m / (v.sqrt() + self.eps)))
+        # table - step m / (sqrt(v) + eps), as an add of the negated step (the rows are distinct)
+        self.table.index_add_(0, rows, (-step_size) * m / (v.sqrt() + self.eps))
