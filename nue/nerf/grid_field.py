@@ -124,8 +124,9 @@ class GridField(nn.Module):
         base = torch.floor(g)
         frac = g - base
         inside = ((base >= 0) & (base < self.last_base)).all(dim=-1)
-        low = (base.long() * self.strides).sum(dim=-1, keepdim=True)  # flat row of the low corner
-        rows = torch.where(inside[:, None], low + self.corner_rows, self.n_corners)  # (P, 8)
+        low = (base.long() * self.strides).sum(dim=-1)  # flat row of the low corner
+        # (P, 8) rows, formed with the points along the last axis (broadcasts over 8 columns are slow)
+        rows = torch.where(inside, low + self.corner_rows[:, None], self.n_corners).T.contiguous()
         # trilinear weights wz * wy * wx of the 8 corners, computed with the points along the last axis
         frac = frac.T.contiguous()
         f = torch.stack([1.0 - frac, frac])  # (2, 3, P): weight of the low / high corner per axis
