@@ -113,7 +113,7 @@ def train_samples_per_s(cfg: ModelConfig, iters: int, t: int = 8, b: int = 8) ->
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=int, default=100, help="timed inference steps per config and thread count")
+    parser.add_argument("--runs", type=int, default=50, help="timed inference steps per config and thread count")
     parser.add_argument("--train-iters", type=int, default=3, help="timed training steps per config and thread count")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--out", type=Path, default=OUT)
