@@ -66,7 +66,7 @@ class CoverageTracker:
     """Seen area after each step so far, m²."""
     seen: np.ndarray | None = None
     """(M, M) bool union of seen cells so far."""
-    _centres: np.ndarray | None = field(default=None, repr=False)
+    _centres: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def __call__(self, step) -> None:
         if self._centres is None:  # every cell's centre, once (the frames project only the cells not seen yet)
