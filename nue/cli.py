@@ -22,6 +22,7 @@ from nue.outputs import check_output_dir, check_output_file
 
 if TYPE_CHECKING:
     from nue.sim.episode_gen import EpisodeGenConfig
+    from nue.viz.view import ViewConfig
 
 app = typer.Typer(add_completion=False, pretty_exceptions_enable=False, no_args_is_help=True,
                   help="Image-goal navigation with an uncertainty-aware NeRF memory.")
@@ -141,26 +142,36 @@ def demo(
     typer.echo(f"figures and records in {out}/")
 
 
-@app.command("view")
+_VIEW = "nue.viz.view"
+VIEW_LIVE = ConfigOptions(
+    f"{_VIEW}:LiveSource",
+    Opt("scene", path=True, default=None, help="Live run: scene folder."),
+    Opt("episodes", path=True, default=None, help="Live run: episode file; replay: the file holding the record's episode "
+                                                  "(default EPISODES_DIR/<scene>.json)."),
+    Opt("episode", help="Live run: episode id or index in the file."),
+    Opt("checkpoint", path=True, help="Live run: policy checkpoint (default: the geodesic expert). Replay with --maps: "
+                                      "the memory's preset and initial weights."),
+    as_dict=True)
+VIEW_REPLAY = ConfigOptions(
+    f"{_VIEW}:ReplaySource", Opt("records", path=True, default=(), help="Replay: record files (JSON lines); repeatable."),
+    Opt("key", default=None, help="Replay: the record's key (method/scene/episode_id)."),
+    Opt("maps", help="Replay: re-run the memory along the recorded poses to show I_u / I_cog."),
+    Opt("scenes_root", path=True, help="Replay: where the record's house is."),
+    Opt("episodes_dir", path=True, help="Replay: folder of per-house episode files."), as_dict=True)
+VIEW_RUN = ConfigOptions(f"{_VIEW}:LiveSource", "task", Opt("seed", help="Live run: episode seed."),
+                         Opt("max_steps", check=A.non_negative, help="Live run: override the step limit (0 = the preset's)."),
+                         as_dict=True)
+VIEW_SERVE = ConfigOptions(f"{_VIEW}:ViewConfig", Opt("port", help="Port of the web page."), "grpc_port",
+                           Opt("save", path=True, help="Also write the recording here (.rrd; opens with `rerun FILE`)."),
+                           Opt("serve", help="Serve the page (--no-serve: only --save)."))
+
+
+@config_command
 def view_cmd(
-    scene: Optional[Path] = typer.Option(None, help="Live run: scene folder."),
-    episodes: Optional[Path] = typer.Option(None, help="Live run: episode file; replay: the file holding the record's episode "
-                                            "(default EPISODES_DIR/<scene>.json)."),
-    episode: str = typer.Option("0", help="Live run: episode id or index in the file."),
-    checkpoint: Optional[Path] = typer.Option(None, help="Live run: policy checkpoint (default: the geodesic expert). "
-                                              "Replay with --maps: the memory's preset and initial weights."),
-    records: list[Path] = typer.Option([], "--records", help="Replay: record files (JSON lines); repeatable."),
-    key: Optional[str] = typer.Option(None, help="Replay: the record's key (method/scene/episode_id)."),
-    maps: bool = typer.Option(False, help="Replay: re-run the memory along the recorded poses to show I_u / I_cog."),
-    scenes_root: Path = typer.Option(Path("data/scenes"), help="Replay: where the record's house is."),
-    episodes_dir: Path = typer.Option(Path("episodes/val"), help="Replay: folder of per-house episode files."),
-    task: str = typer.Option("paper", help="Task preset."),
-    seed: int = typer.Option(0, help="Live run: episode seed."),
-    max_steps: int = typer.Option(0, help="Live run: override the step limit (0 = the preset's)."),
-    port: int = typer.Option(9090, help="Port of the web page."),
-    grpc_port: int = typer.Option(9876, help="Port of the data stream the page reads."),
-    save: Optional[Path] = typer.Option(None, help="Also write the recording here (.rrd; opens with `rerun FILE`)."),
-    serve: bool = typer.Option(True, help="Serve the page (--no-serve: only --save)."),
+    live: dict = VIEW_LIVE,
+    replay: dict = VIEW_REPLAY,
+    run: dict = VIEW_RUN,
+    cfg: ViewConfig = VIEW_SERVE,
     screenshot: Optional[Path] = typer.Option(None, help="Write a PNG of the page (headless chromium) after the episode, then exit."),
     serve_seconds: float = typer.Option(0.0, help="Serve this long after the episode (0 = until Ctrl-C; with --screenshot: exit)."),
     screenshot_timeout: float = typer.Option(120.0, help="Give up on the screenshot when the page is not ready after this many seconds."),
@@ -172,27 +183,25 @@ def view_cmd(
         import rerun  # noqa: F401
     except ImportError:
         raise ConfigError("nue view", "needs the viewer library: pip install 'nue[view]' (rerun-sdk)") from None
-    from nue.viz.view import LiveSource, ReplaySource, ViewConfig, view
+    from nue.viz.view import LiveSource, ReplaySource, view
 
-    A.non_negative("--max-steps", max_steps)
-    if save:
-        check_output_file(save, "the recording")
+    if cfg.save:
+        check_output_file(Path(cfg.save), "the recording")
     if screenshot:
         check_output_file(screenshot, "the screenshot")
-    if records or key:
-        if not (records and key):
+    if replay["records"] or replay["key"]:
+        if not (replay["records"] and replay["key"]):
             raise ConfigError("--records", "a replay needs both --records and --key")
-        source = ReplaySource(records=tuple(map(str, records)), key=key, scenes_root=str(scenes_root),
-                              episodes=str(episodes) if episodes else None, episodes_dir=str(episodes_dir), task=task,
-                              maps=maps, checkpoint=str(checkpoint) if checkpoint else None)
+        source = ReplaySource(**replay, task=run["task"], episodes=live["episodes"], checkpoint=live["checkpoint"])
     else:
-        if scene is None or episodes is None:
+        if live["scene"] is None or live["episodes"] is None:
             raise ConfigError("--scene", "a live run needs --scene and --episodes (or replay with --records and --key)")
-        source = LiveSource(scene=str(scene), episodes=str(episodes), episode=episode,
-                            checkpoint=str(checkpoint) if checkpoint else None, task=task, seed=seed, max_steps=max_steps)
-    cfg = ViewConfig(port=port, grpc_port=grpc_port, serve=serve, save=str(save) if save else None)
+        source = LiveSource(**live, **run)
     view(cfg, source, screenshot=str(screenshot) if screenshot else None, serve_seconds=serve_seconds,
          screenshot_timeout=screenshot_timeout, echo=typer.echo)
+
+
+app.command("view")(view_cmd)
 
 
 def main(argv: list[str] | None = None) -> None:

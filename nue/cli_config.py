@@ -196,9 +196,12 @@ class ConfigOptions:
     """Command-line options of chosen fields of a config dataclass ``ref`` ("module:Class"), in the order given;
     a field given by name is an :class:`Opt` with no overrides."""
 
-    def __init__(self, ref: str, *opts: Opt | str):
+    def __init__(self, ref: str, *opts: Opt | str, as_dict: bool = False):
         self.ref = ref
         self.opts = tuple(Opt(o) if isinstance(o, str) else o for o in opts)
+        self.as_dict = as_dict
+        """The command receives ``{field: value}`` instead of the built class (when which class to build, or
+        whether to build it at all, depends on other options, as for ``nue view``'s live run or replay)."""
         fields = config_fields(ref)
         for o in self.opts:
             f = fields.get(o.field)
@@ -216,7 +219,7 @@ class ConfigOptions:
         if unknown:
             raise TypeError(f"{self.ref}: no options {sorted(unknown)}")
         return ConfigOptions(self.ref, *(dataclasses.replace(o, **changes.get(o.field, {}))
-                                         for o in self.opts if o.field not in drop))
+                                         for o in self.opts if o.field not in drop), as_dict=self.as_dict)
 
     def renamed(self, flags: dict[str, str], *, panel: str, see: str) -> ConfigOptions:
         """The options of the fields in ``flags`` under the flags given there (old spellings), each listed in
@@ -235,13 +238,17 @@ class ConfigOptions:
                                   annotation=self._cli_type(o)) for o in self.opts]
 
     def build(self, values: dict[str, Any]):
-        """The config from the options' values (by field name): every check first, then the class (imported now)."""
+        """The config from the options' values (by field name): every check first, then the class (imported now);
+        with ``as_dict`` the fields' values instead."""
         for o in self.opts:
             if o.check is not None:
                 o.check(o.option, values[o.field])
+        fields = {o.field: self._to_field(o, values[o.field]) for o in self.opts}
+        if self.as_dict:
+            return fields
         module, _, name = self.ref.partition(":")
         cls = getattr(importlib.import_module(module), name)
-        return cls(**{o.field: self._to_field(o, values[o.field]) for o in self.opts})
+        return cls(**fields)
 
     # -- one option
     def _cli_type(self, o: Opt) -> Any:

@@ -51,4 +51,9 @@ def test_totals_are_pooled_over_episodes():
 
 def test_record_round_trip():
     r = rec(0, "easy", True, 2.0, 4.0, 0.5)
-    assert EpisodeRecord.from_dict(r.to_dict()) == r
+    d = r.to_dict()
+    assert d["format"] == "nue-record/1" and EpisodeRecord.from_dict(d) == r
+    legacy = {k: v for k, v in d.items() if k != "format"}  # written before records carried a format
+    assert EpisodeRecord.from_dict(legacy) == r
+    with pytest.raises(ValueError, match="nue-record/2"):
+        EpisodeRecord.from_dict({**d, "format": "nue-record/2"})

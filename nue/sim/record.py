@@ -19,6 +19,8 @@ import numpy as np
 TRAJECTORY_KEY = "trajectory"
 """Key of ``EpisodeRecord.extra`` holding the encoded :class:`Trajectory`."""
 TRAJECTORY_FORMAT = "trajectory/1"
+RECORD_FORMAT = "nue-record/1"
+"""``format`` entry of a record's dict; records written before it existed carry none and read as this one."""
 POSE_SCALE = (0.01, 0.01, 0.001)
 """Metres, metres, radians per int16 unit of the encoded poses."""
 
@@ -98,11 +100,17 @@ class EpisodeRecord:
     """Free-form additions (seed, checkpoint, ...)."""
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The record as one JSON object: ``{"format": RECORD_FORMAT, <field>: <value>, ...}``."""
+        return {"format": RECORD_FORMAT, **asdict(self)}
 
     @classmethod
     def from_dict(cls, d: dict) -> "EpisodeRecord":
-        return cls(**d)
+        """The record of :meth:`to_dict`'s dict (or of one without ``format``, written before it existed);
+        :class:`ValueError` for another format."""
+        fmt = d.get("format", RECORD_FORMAT)
+        if fmt != RECORD_FORMAT:
+            raise ValueError(f"record format {fmt!r} is not {RECORD_FORMAT!r} (written by another version of nue?)")
+        return cls(**{k: v for k, v in d.items() if k != "format"})
 
     def trajectory(self) -> Trajectory | None:
         """The per-step trajectory, if the record carries one (records made before it existed do not)."""
