@@ -15,6 +15,7 @@ re-run along the recorded poses only when asked (``ReplaySource.maps``).
 from __future__ import annotations
 
 import dataclasses
+import json
 import socket
 import time
 from dataclasses import dataclass
@@ -25,8 +26,19 @@ import numpy as np
 import rerun as rr
 
 from nue.errors import ConfigError, DataError, EpisodeError
+from nue.nerf.online import OnlineNeRF
+from nue.policy.agent import ExpertAgent
+from nue.rollout import run_episode
+from nue.scene.generator import SPLITS, ensure_house
+from nue.scene.navgrid import NavGrid
+from nue.scene.scene import Scene
+from nue.sim.env import ImageNavEnv, make_env
+from nue.sim.episodes import load_episodes
 from nue.sim.record import EpisodeRecord
+from nue.sim.task import get_task
+from nue.train.checkpoint import load_agent, load_header, load_memory
 from nue.viz.view_scene import GOAL_COLOUR, TRAJECTORY_COLOUR, EpisodeLogger, SceneViewConfig, blueprint
+from nue.viz.view_shot import find_chromium, has_colour, screenshot_page
 
 
 @dataclass(frozen=True)
@@ -148,7 +160,6 @@ class Viewer:
 
 # ------------------------------------------------------------------------------------------ sources
 def _task(name: str, max_steps: int = 0):
-    from nue.sim.task import get_task
 
     task = get_task(name)
     return dataclasses.replace(task, max_steps=max_steps) if max_steps else task
@@ -167,11 +178,9 @@ def pick_episode(episodes: list, which: str, where) -> object:
 
 def _memory_from(checkpoint: str | None, camera):
     """The online NeRF memory: a checkpoint's preset and initial weights, else the ``fast`` preset."""
-    from nue.nerf.online import OnlineNeRF
 
     if checkpoint is None:
         return OnlineNeRF("fast", camera)
-    from nue.train.checkpoint import load_memory
 
     return load_memory(checkpoint, camera)
 
@@ -180,20 +189,14 @@ def run_live(viewer: Viewer, src: LiveSource) -> EpisodeRecord:
     """Run ``src``'s episode through :func:`nue.rollout.run_episode`, logging every step; returns its record.
     The env and agent come from the shared setup path (:func:`nue.sim.env.make_env`,
     :func:`nue.train.checkpoint.load_agent`); the expert gets the ``fast`` memory alongside, for the maps."""
-    from nue.rollout import run_episode
-    from nue.scene.scene import Scene
-    from nue.sim.env import make_env
-    from nue.sim.episodes import load_episodes
 
     scene = Scene.load(src.scene)
     env = make_env(scene, src.task, max_steps=src.max_steps)
     episode = pick_episode(load_episodes(src.episodes, scene, env.task, navgrid=env.navgrid), src.episode, src.episodes)
     if src.checkpoint is None:
-        from nue.policy.agent import ExpertAgent
 
         agent, memory, method = ExpertAgent(), _memory_from(None, env.task.camera), "expert"
     else:
-        from nue.train.checkpoint import load_agent, load_header
 
         agent, memory = load_agent(src.checkpoint, env.task, scenes={scene.name: scene.content_hash})
         method = load_header(src.checkpoint).name
@@ -213,7 +216,6 @@ def run_live(viewer: Viewer, src: LiveSource) -> EpisodeRecord:
 
 def find_record(paths, key: str) -> EpisodeRecord:
     """The record whose ``extra['key']`` is ``key`` (or ends in ``/key``); :class:`DataError` if none or several."""
-    import json
 
     hits, n = [], 0
     for path in paths:
@@ -236,11 +238,6 @@ def find_record(paths, key: str) -> EpisodeRecord:
 
 def run_replay(viewer: Viewer, src: ReplaySource) -> np.ndarray:
     """Log the recorded episode at its recorded poses; returns those poses (T + 1, 3)."""
-    from nue.scene.generator import SPLITS, ensure_house
-    from nue.scene.navgrid import NavGrid
-    from nue.scene.scene import Scene
-    from nue.sim.env import ImageNavEnv
-    from nue.sim.episodes import load_episodes
 
     record = find_record(src.records, src.key)
     traj = record.trajectory()
@@ -277,7 +274,6 @@ def view(cfg: ViewConfig, source: LiveSource | ReplaySource, screenshot: str | N
     """Serve / save one episode; with ``screenshot``, write a PNG of the page after the episode (waiting at
     most ``screenshot_timeout`` s for the page) and return (after ``serve_seconds`` more, if given); else
     keep serving for ``serve_seconds`` (0 = until Ctrl-C)."""
-    from nue.viz.view_shot import find_chromium, has_colour, screenshot_page
 
     if screenshot and not cfg.serve:
         raise ConfigError("--screenshot", "needs the page: drop --no-serve")
