@@ -65,3 +65,26 @@ def nue_here(*args, env: dict[str, str] | None = None) -> subprocess.CompletedPr
         except SystemExit as exc:
             code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     return subprocess.CompletedProcess(["nue", *argv], code, out.getvalue(), err.getvalue())
+
+
+@pytest.fixture
+def local_ray():
+    """A local 2-CPU Ray cluster for one test (skipped without Ray), shut down after it. Ray gives its node a fixed
+    30 s to register, which a loaded machine can miss: ``ray.init`` is retried, and the test skipped (naming the
+    cause) if the node never starts."""
+    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'nue[ray]')")
+    attempts = 3
+    for _ in range(attempts):
+        try:
+            ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+            break
+        except Exception as exc:  # Ray raises a bare Exception for "node timed out during startup"
+            ray.shutdown()
+            if "timed out during startup" not in str(exc):
+                raise
+    else:
+        pytest.skip(f"a local Ray node did not start within {attempts} x 30 s (machine overloaded)")
+    try:
+        yield ray
+    finally:
+        ray.shutdown()

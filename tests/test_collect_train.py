@@ -125,15 +125,10 @@ def test_killed_and_resumed_collection_equals_uninterrupted(demos, reference):
         _same_episode(a[key], b[key])
 
 
-def test_ray_collection_equals_single_process(houses, reference, tmp_path):
-    ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        out = tmp_path / "demos"
-        cfg = CollectConfig(scene_dirs=(str(houses[0]),), episodes_per_bin=1, heldout_per_bin=0, memory=TINY)
-        collect(out, cfg, tmp_path / "scenes", ray_address="auto", progress=False)
-    finally:
-        ray.shutdown()
+def test_ray_collection_equals_single_process(houses, reference, tmp_path, local_ray):
+    out = tmp_path / "demos"
+    cfg = CollectConfig(scene_dirs=(str(houses[0]),), episodes_per_bin=1, heldout_per_bin=0, memory=TINY)
+    collect(out, cfg, tmp_path / "scenes", ray_address="auto", progress=False)
     got, ref = _files(out), _files(reference)
     assert sorted(got) == [k for k in sorted(ref) if k.startswith("train/room_a/")]
     for key, path in got.items():

@@ -11,7 +11,6 @@ import textwrap
 import time
 from pathlib import Path
 
-import pytest
 
 DRIVER = textwrap.dedent('''
     import os, sys, time
@@ -76,42 +75,24 @@ def test_killing_the_driver_ends_its_workers_and_resource_tracker(tmp_path):
     _poll(lambda: not any(_alive(p) for p in children), 30, f"processes {sorted(p for p in children if _alive(p))} to end")
 
 
-def test_killing_the_driver_ends_its_ray_tasks(tmp_path):
+def test_killing_the_driver_ends_its_ray_tasks(tmp_path, local_ray):
     """The driver connects to a Ray cluster that this test owns (as an existing cluster would be), starts two
     tasks that never finish, and is killed with -9: the cluster lives on, the tasks' processes end."""
-    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'nue[ray]')")
+    ray = local_ray
     script = tmp_path / "driver.py"
     script.write_text(DRIVER)
     pids = tmp_path / "pids"
     pids.mkdir()
-    _start_local_ray(ray, num_cpus=2)
+    address = ray.get_runtime_context().gcs_address
+    driver = subprocess.Popen([sys.executable, str(script), str(pids), address],
+                              env={**os.environ, "OMP_NUM_THREADS": "1"})
     try:
-        address = ray.get_runtime_context().gcs_address
-        driver = subprocess.Popen([sys.executable, str(script), str(pids), address],
-                                  env={**os.environ, "OMP_NUM_THREADS": "1"})
-        try:
-            _poll(lambda: len(list(pids.glob("*.pid"))) == 2 or driver.poll() is not None, 300, "two busy Ray tasks")
-            assert driver.poll() is None, "the driver ended early"
-            tasks = {int(p.stem) for p in pids.glob("*.pid")}
-            assert all(_alive(p) for p in tasks)
-        finally:
-            driver.send_signal(signal.SIGKILL)
-            driver.wait()
-        _poll(lambda: not any(_alive(p) for p in tasks), 60, f"Ray tasks {sorted(p for p in tasks if _alive(p))} to end")
-        assert ray.cluster_resources().get("CPU") == 2  # the cluster itself is still there
+        _poll(lambda: len(list(pids.glob("*.pid"))) == 2 or driver.poll() is not None, 300, "two busy Ray tasks")
+        assert driver.poll() is None, "the driver ended early"
+        tasks = {int(p.stem) for p in pids.glob("*.pid")}
+        assert all(_alive(p) for p in tasks)
     finally:
-        ray.shutdown()
-
-
-def _start_local_ray(ray, num_cpus: int, attempts: int = 3) -> None:
-    """``ray.init`` of a local cluster; Ray gives its node a fixed 30 s to register, which a loaded machine can
-    miss, so retry, and skip (naming the cause) if it never starts."""
-    for _ in range(attempts):
-        try:
-            ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
-            return
-        except Exception as exc:  # Ray raises a bare Exception for "node timed out during startup"
-            ray.shutdown()
-            if "timed out during startup" not in str(exc):
-                raise
-    pytest.skip(f"a local Ray node did not start within {attempts} x 30 s (machine overloaded)")
+        driver.send_signal(signal.SIGKILL)
+        driver.wait()
+    _poll(lambda: not any(_alive(p) for p in tasks), 60, f"Ray tasks {sorted(p for p in tasks if _alive(p))} to end")
+    assert ray.cluster_resources().get("CPU") == 2  # the cluster itself is still there
