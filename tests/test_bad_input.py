@@ -240,7 +240,9 @@ def test_a_directory_as_checkpoint_is_named_as_such(capsys, tmp_path, one_episod
     ("{not json\n", "line 1: not JSON"),
     ('[1, 2]\n', "line 1: not an episode record"),
     ('{"method": "nue"}\n', "missing"),
-    ('{"format": "nue-record/9", "method": "nue"}\n', "line 1: record format 'nue-record/9' is not 'nue-record/1'"),
+    ('{"format": "nue-record/9", "episode_id": "0", "scene": "s", "difficulty": "easy", "success": true, '
+     '"geodesic_start": 2.0, "path_length": 2.0, "final_geodesic": 0.5, "final_euclidean": 0.5, "success_radius": 0.8}\n',
+     "line 1: record format 'nue-record/9' is not 'nue-record/1'"),
 ])
 def test_corrupt_record_files_are_one_line(capsys, tmp_path, content, problem):
     rec = tmp_path / "records.jsonl"

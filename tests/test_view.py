@@ -15,6 +15,7 @@ import pytest
 
 pytest.importorskip("rerun")
 
+from nue.errors import DataError
 from nue.policy.agent import ExpertAgent
 from nue.rollout import run_episode
 from nue.sim.env import ImageNavEnv
@@ -123,6 +124,14 @@ def test_export_of_a_policy_run_opens_with_reader_and_holds_every_view(tmp_path,
     assert steps[0] == 0 and len(steps) >= 2
     steps_u, _ = _column(rrd, "/world/uncertainty", "positions")
     assert len(steps_u) == len(steps) - 1  # maps at every step the policy acted, none after the last
+
+
+def test_a_record_of_another_format_is_refused_naming_the_file(tmp_path):
+    records = tmp_path / "rec.jsonl"
+    records.write_text(json.dumps({"format": "nue-record/9", "method": "nue", "scene": "box_room", "episode_id": "3"}) + "\n")
+    with pytest.raises(DataError, match="record format 'nue-record/9'") as err:
+        find_record([records], "box_room/3")
+    assert str(records) in str(err.value)
 
 
 def test_taken_port_is_a_one_line_error(episode_file):

@@ -31,7 +31,7 @@ import numpy as np
 
 from nue.errors import DataError
 from nue.evaluate.table import by_method, canonical_method, method_label
-from nue.sim.record import RECORD_FORMAT, EpisodeRecord, Trajectory
+from nue.sim.record import EpisodeRecord, RecordFormatError, Trajectory
 from nue.sim.task import TaskConfig, get_task
 
 
@@ -189,8 +189,6 @@ def read_records(*paths) -> list[EpisodeRecord]:
                 d = json.loads(line)
                 if not isinstance(d, dict):
                     raise TypeError(f"a JSON {type(d).__name__}, not an object")
-                if d.get("format", RECORD_FORMAT) != RECORD_FORMAT:
-                    raise DataError(p, f"line {i}: record format {d['format']!r} is not {RECORD_FORMAT!r}")
                 missing = [f.name for f in fields(EpisodeRecord) if f.name not in d
                            and f.default is MISSING and f.default_factory is MISSING]
                 if missing:
@@ -201,6 +199,8 @@ def read_records(*paths) -> list[EpisodeRecord]:
                 r.trajectory()
             except json.JSONDecodeError:
                 raise DataError(p, f"line {i}: not JSON") from None
+            except RecordFormatError as exc:
+                raise DataError(p, f"line {i}: {exc}") from None
             except (TypeError, AttributeError) as exc:
                 raise DataError(p, f"line {i}: not an episode record ({exc})") from None
             except (ValueError, KeyError, binascii.Error) as exc:

@@ -64,6 +64,10 @@ class Trajectory:
         return cls(actions, collided, q.astype(np.float64) * np.asarray(POSE_SCALE))
 
 
+class RecordFormatError(ValueError):
+    """A record's dict carries a ``format`` other than :data:`RECORD_FORMAT`."""
+
+
 @dataclass(frozen=True)
 class EpisodeRecord:
     """What one finished episode produced; everything the metrics need."""
@@ -106,10 +110,10 @@ class EpisodeRecord:
     @classmethod
     def from_dict(cls, d: dict) -> "EpisodeRecord":
         """The record of :meth:`to_dict`'s dict (or of one without ``format``, written before it existed);
-        :class:`ValueError` for another format."""
+        :class:`RecordFormatError` for another format."""
         fmt = d.get("format", RECORD_FORMAT)
         if fmt != RECORD_FORMAT:
-            raise ValueError(f"record format {fmt!r} is not {RECORD_FORMAT!r} (written by another version of nue?)")
+            raise RecordFormatError(f"record format {fmt!r} is not {RECORD_FORMAT!r}")
         return cls(**{k: v for k, v in d.items() if k != "format"})
 
     def trajectory(self) -> Trajectory | None:

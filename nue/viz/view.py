@@ -34,7 +34,7 @@ from nue.scene.navgrid import NavGrid
 from nue.scene.scene import Scene
 from nue.sim.env import ImageNavEnv, make_env
 from nue.sim.episodes import load_episodes
-from nue.sim.record import EpisodeRecord
+from nue.sim.record import EpisodeRecord, RecordFormatError
 from nue.sim.task import get_task
 from nue.train.checkpoint import load_agent, load_header, load_memory
 from nue.viz.view_scene import GOAL_COLOUR, TRAJECTORY_COLOUR, EpisodeLogger, SceneViewConfig, blueprint
@@ -160,7 +160,6 @@ class Viewer:
 
 # ------------------------------------------------------------------------------------------ sources
 def _task(name: str, max_steps: int = 0):
-
     task = get_task(name)
     return dataclasses.replace(task, max_steps=max_steps) if max_steps else task
 
@@ -194,10 +193,8 @@ def run_live(viewer: Viewer, src: LiveSource) -> EpisodeRecord:
     env = make_env(scene, src.task, max_steps=src.max_steps)
     episode = pick_episode(load_episodes(src.episodes, scene, env.task, navgrid=env.navgrid), src.episode, src.episodes)
     if src.checkpoint is None:
-
         agent, memory, method = ExpertAgent(), _memory_from(None, env.task.camera), "expert"
     else:
-
         agent, memory = load_agent(src.checkpoint, env.task, scenes={scene.name: scene.content_hash})
         method = load_header(src.checkpoint).name
     log: list[EpisodeLogger] = []
@@ -233,7 +230,10 @@ def find_record(paths, key: str) -> EpisodeRecord:
     if len(hits) != 1:
         why = "no record" if not hits else f"{len(hits)} records ({', '.join(k for k, _ in hits[:3])})"
         raise DataError(paths[0] if len(paths) == 1 else "--records", f"{why} with key {key!r} among {n}")
-    return EpisodeRecord.from_dict(hits[0][1])
+    try:
+        return EpisodeRecord.from_dict(hits[0][1])
+    except RecordFormatError as exc:
+        raise DataError(paths[0] if len(paths) == 1 else "--records", f"{key}: {exc}") from None
 
 
 def run_replay(viewer: Viewer, src: ReplaySource) -> np.ndarray:
