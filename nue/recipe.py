@@ -4,9 +4,10 @@ presets ``RECIPES``, and the time estimate a recipe implies, stage by stage (``e
 A recipe fixes everything that changes the results: the demonstrations (expert, DART noise, episodes per
 bin), the models and their training (budget in wall-clock minutes on one core or in samples, batch,
 precision, map dropout, closed-loop selection, optional DAgger), and the evaluation sets. How the run is
-executed (worker processes, a Ray cluster, folders) is not part of it. ``v3`` is the recipe of
-``checkpoints/README.md`` ("v3 recipe") applied to every model of Table I; ``quick`` is tiny everything,
-for CI.
+executed (worker processes, a Ray cluster, folders) is not part of it. ``v5`` is the recipe of the shipped
+checkpoints (``checkpoints/README.md``, "v5 recipe": the training config of ``checkpoints/*.pt``) applied to
+every model of Table I, and the default; ``v3`` is its predecessor (34 instead of 50 minutes per model);
+``quick`` is tiny everything, for CI.
 """
 
 from __future__ import annotations
@@ -174,8 +175,12 @@ def _jsonable(x):
 
 
 V3 = Recipe(name="v3")
+V5 = V3.replace(name="v5", train_minutes=50.0, select_candidates=2,
+                steps=(("nue", StepPlan(30_000, 1_500)), ("fr", StepPlan(80_000, 3_000)),
+                       ("nav_a3c", StepPlan(30_000, 1_000))))
 
 RECIPES: dict[str, Recipe] = {
+    "v5": V5,
     "v3": V3,
     "quick": V3.replace(
         name="quick", expert="geodesic", episodes_per_bin=1, heldout_per_bin=0, train_houses=(0,), train_minutes=0.0,
@@ -183,7 +188,8 @@ RECIPES: dict[str, Recipe] = {
         seq_len=2, warmup=1, precision="fp32", select="accuracy", eval_houses=(0,), eval_max_episodes=1,
         eval_max_steps=5, experts=("expert",)),
 }
-"""Named recipes: ``v3`` (checkpoints/README.md "v3 recipe", for all eight models) and ``quick`` (CI)."""
+"""Named recipes: ``v5`` (the shipped checkpoints' recipe, for all eight models; the default), ``v3``
+(checkpoints/README.md "v3 recipe") and ``quick`` (CI)."""
 
 
 def get_recipe(name: str) -> Recipe:

@@ -195,6 +195,20 @@ def test_write_report_and_results_md_regenerate(tmp_path):
         assert s in text
 
 
+def test_results_md_puts_earlier_recipes_in_their_own_table():
+    """``nue_v2`` (all four episodes failed) is not a Table I row and not in the ordering, but has its own table and
+    its paired difference to NUE: -0.5 SR (NUE won 2 of the 4 episodes)."""
+    recs = hand_records() + [rec(i, d, False, method="nue_v2") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
+    text = R.render_results_md(recs, {"command": "x"})
+    table1 = text.split("## Table I")[1].split("## Earlier recipes")[0]
+    earlier = text.split("## Earlier recipes")[1].split("## ")[0]
+    assert "| NUE (full) | 4 |" in table1 and "nue_v2" not in table1
+    assert "| nue_v2 | 4 | 0.0 [0.0, 65.8] |" in earlier and "NUE (full)" not in earlier
+    assert "| nue_v2 | 4 | -50.0 [" in text.split("## Paired differences to NUE")[1]
+    assert R.is_earlier_recipe("fr_v12") and not R.is_earlier_recipe("fr") and not R.is_earlier_recipe("v2_nue")
+    assert "## Earlier recipes" not in R.render_results_md(hand_records(), {"command": "x"})
+
+
 def test_seen_floor_cells_rendered_occlusion(box_nav, box_renderer):
     """Looking south at the 1 m high box at (1.0, -2.0): the floor behind it and behind the walls is not seen."""
     cam = CameraConfig()

@@ -1,10 +1,12 @@
 """``nue reproduce``: the quick recipe end to end through the command line, killed after three stages (an
 injected failure) and rerun — no finished stage is redone, and the rest completes to RESULTS.md; a rerun
-with another recipe is refused; the recipes are the documented ones; the estimate adds up."""
+with another recipe is refused; the recipes are the documented ones (v5 trains as the shipped checkpoints
+were trained); the estimate adds up."""
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
 import os
@@ -16,7 +18,8 @@ from nue.cli import main
 from nue.errors import ConfigError
 from nue.evaluate.report import load_records
 from nue.recipe import RECIPES, TABLE_I_MODELS, StepPlan, estimate, format_estimate, get_recipe
-from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, plan_stages, reproduce
+from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, plan_stages, reproduce, train_config
+from nue.train.checkpoint import load_policy
 
 EPISODES = Path(__file__).resolve().parents[1] / "episodes"
 pytestmark = pytest.mark.timeout(600)  # the quick run takes ~35 s of CPU; a loaded machine stretches the wall clock
@@ -88,7 +91,7 @@ def test_a_rerun_with_another_recipe_is_refused(run):
     out, _, _, _, args = run
     with pytest.raises(ConfigError, match="noise"):
         reproduce(get_recipe("quick").replace(noise=0.1), out, echo=lambda s: None)
-    code, _ = _nue(*[a for a in args if a != "--quick"])  # the default recipe, v3, into the quick run's folder
+    code, _ = _nue(*[a for a in args if a != "--quick"])  # the default recipe, v5, into the quick run's folder
     assert code == 2
     assert json.loads((out / "recipe.json").read_text())["recipe"]["name"] == "quick"
 
@@ -108,6 +111,22 @@ def test_v3_is_the_documented_recipe_for_every_model():
         v3.replace(models=("nue", "no_such_model"))
     with pytest.raises(ConfigError):
         get_recipe("v9")
+
+
+@pytest.mark.parametrize("model", ["nue", "fr", "nav_a3c", "abl_none"])
+def test_v5_trains_as_the_shipped_checkpoints_were_trained(model):
+    """Every training setting of ``checkpoints/<model>.pt`` (stored in the file) is what the v5 preset gives that
+    model, but for the paths, which belong to the run."""
+    _, header = load_policy(EPISODES.parent / "checkpoints" / f"{model}.pt")
+    folders = RunFolders(Path("/nowhere"), Path("data/scenes"), Path("episodes"))
+    ours = dataclasses.asdict(train_config(get_recipe("v5"), model, folders))
+    paths = {"data", "out", "select_episodes", "select_scenes_root"}
+    stored = {k: v for k, v in header.train_config.items() if k in ours and k not in paths}
+    assert len(stored) >= 20 and stored == {k: ours[k] for k in stored}
+    assert header.manifest_hash == "cc12e17f2c5e6ce1"  # the exploring expert's demonstrations (v3 collect command)
+    v5, v3 = get_recipe("v5"), get_recipe("v3")
+    assert (v5.expert, v5.noise, v5.episodes_per_bin, v5.heldout_per_bin) == (v3.expert, v3.noise, 6, 1)
+    assert RECIPES and next(iter(RECIPES)) == "v5"
 
 
 def test_the_estimate_covers_every_stage_and_scales_with_workers():

@@ -256,7 +256,9 @@ def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = Tr
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    rows = build_table(records)
+    current = [r for r in records if not is_earlier_recipe(r.method)]
+    earlier = [r for r in records if is_earlier_recipe(r.method)]
+    rows = build_table(current)
     paper = paper_table() if reference else None
     md = (f"# Table I\n\n{format_markdown(rows, paper)}\n{NOTES}\n\n## Episodes per cell (successes / episodes)\n\n"
           f"{format_counts_markdown(rows)}\n## Paired differences to NUE\n\n{format_paired_markdown(paired_differences(records))}"
@@ -287,13 +289,25 @@ def _ordering_markdown(rows: Sequence[TableRow], paper: Mapping) -> str:
     return "\n".join(lines) + f"\n\nKendall's tau between the two orderings: {_f(float(tau), '.2f')}.\n"
 
 
+_EARLIER_RECIPE = re.compile(r"_v[0-9]+$")
+
+
+def is_earlier_recipe(method: str) -> bool:
+    """Whether a record's method names an earlier recipe's model (``nue_v2``, ``fr_v1``): a ``_v<N>`` suffix."""
+    return bool(_EARLIER_RECIPE.search(method))
+
+
 def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, object], task: str = "paper") -> str:
     """The text of RESULTS.md, a pure function of the records and ``meta``.
 
     ``meta``: ``command``, ``date``, ``commit``, ``machine`` (shown first), any other keys
-    (sorted). Same inputs give the same bytes (the bootstrap is seeded).
+    (sorted). Methods named ``<method>_v<N>`` (:func:`is_earlier_recipe`) get their own table after
+    Table I and stay in the paired differences, coverage and diagnostics. Same inputs give the same
+    bytes (the bootstrap is seeded).
     """
-    rows = build_table(records)
+    current = [r for r in records if not is_earlier_recipe(r.method)]
+    earlier = [r for r in records if is_earlier_recipe(r.method)]
+    rows = build_table(current)
     paper = paper_table()
     first = ["command", "date", "commit", "machine"]
     keys = [k for k in first if k in meta] + sorted(k for k in meta if k not in first and k != "discussion")
@@ -309,6 +323,11 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     ordering = _ordering_markdown(rows, paper)
     if ordering:
         parts.append(f"## Ordering by total SR\n\n{ordering}")
+    if earlier:
+        parts.append("## Earlier recipes\n\nRows named `<method>_v<N>` are that method trained with an earlier recipe "
+                     "(`checkpoints/README.md`), evaluated on the same episodes with the same seeds; they are left out "
+                     "of Table I and the ordering above, and kept in the comparisons below.\n\n"
+                     f"{format_markdown(build_table(earlier))}")
     diffs = paired_differences(records)
     if diffs:
         parts.append("## Paired differences to NUE\n\nPer method, the mean over the episodes both it and NUE ran "
