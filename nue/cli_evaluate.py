@@ -130,7 +130,7 @@ def report_cmd(
 def diagnose_cmd(
     records: list[Path] = typer.Option([], "--records", help="Record files (JSON lines) from `nue eval`; repeatable."),
     method: list[str] = typer.Option([], help="Only these methods (repeatable; default: all)."),
-    checkpoint: Optional[Path] = typer.Option(None, help="With --data: held-out accuracy with intact, mirrored and other-step maps."),
+    checkpoint: Optional[Path] = typer.Option(None, help="With --data: held-out accuracy with intact, mirrored and other-step maps, and P(forward) after blocked moves."),
     data: Optional[Path] = typer.Option(None, help="Collection folder: previous-action probe on its maps (and the map controls)."),
     part: str = typer.Option("heldout", help="Part of the collection to use (heldout or train)."),
     task: str = typer.Option("paper", help="Task preset the records' action ids belong to."),
@@ -161,12 +161,15 @@ def diagnose_cmd(
         typer.echo("## Closed-loop diagnostics\n\n" + D.format_record_diagnostics(diags))
     if data is not None:
         from nue.evaluate import diagnose_maps as M
+        from nue.sim.task import get_task
         from nue.train.dataset import DemoSet
 
         demos = DemoSet(data, part, verify=False)
         if checkpoint is not None:
             result["map_controls"] = M.map_controls(checkpoint, demos, seed=seed, max_episodes=max_episodes)
             typer.echo("## Map controls\n\n" + M.format_map_controls(result["map_controls"]))
+            result["after_blocked"] = M.after_blocked(checkpoint, demos, get_task(demos.manifest.task).forward_step)
+            typer.echo("## After a blocked move\n\n" + M.format_after_blocked(result["after_blocked"]))
         try:
             result["probe"] = M.previous_action_probe(demos, seed=seed, max_steps=probe_steps, with_cog=probe_cog)
             typer.echo("## Previous-action probe\n\n" + M.format_probe(result["probe"], D.action_short_names(task)))

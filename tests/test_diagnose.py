@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -46,6 +47,9 @@ def test_single_trajectory_by_hand():
     c = D.trajectory_counts(Trajectory(np.array(EP1[0]), np.array(EP1[1], bool), np.zeros((11, 3))))
     assert (c.steps, c.collisions, c.after_blocked, c.forward_after_blocked, c.turns, c.reversals) == (10, 3, 3, 1, 5, 2)
     assert (c.after_stuck, c.forward_after_stuck) == (3, 1)  # the poses never move: every blocked move is stuck
+    assert c.blocked_again == 1  # step 2 after the blocked step 1
+    cleared = D.trajectory_counts(Trajectory(np.array([F, F, F]), np.array([1, 0, 1], bool), np.zeros((4, 3))))
+    assert (cleared.after_blocked, cleared.forward_after_blocked, cleared.blocked_again) == (1, 1, 0)  # forward, cleared
     assert c.action_counts == (5, 2, 3)
 
 
@@ -69,15 +73,15 @@ def test_record_diagnostics_by_hand():
     nue = d["nue"]
     assert (nue.episodes, nue.steps, nue.collisions, nue.without_trajectory) == (3, 20, 6, 1)
     assert nue.collisions_per_episode == pytest.approx(2.0) and nue.collisions_per_step == pytest.approx(6 / 20)
-    assert nue.p_forward_after_blocked == pytest.approx(1 / 3)
+    assert nue.p_forward_after_blocked == pytest.approx(1 / 3) and nue.p_blocked_again == pytest.approx(1 / 3)
     assert nue.turn_reversal_rate == pytest.approx(3 / 6)
     assert nue.action_fractions == pytest.approx({"forward": 6 / 13, "left": 3 / 13, "right": 4 / 13})
     fr = d["fr"]  # old records only: collisions from the record fields, the rest n/a
     assert fr.without_trajectory == 1 and fr.collisions_per_step == pytest.approx(0.1)
     assert np.isnan(fr.p_forward_after_blocked) and np.isnan(fr.turn_reversal_rate)
     md = D.format_record_diagnostics(d)
-    assert "| FR | 1 | 10 | 1.00 | 0.100 | n/a | n/a | n/a | n/a | 1 |" in md
-    assert "| NUE (full) | 3 | 20 | 2.00 | 0.300 | 33.3 | 33.3 (3) | 50.0 | 46.2 / 23.1 / 30.8 | 1 |" in md
+    assert "| FR | 1 | 10 | 1.00 | 0.100 | n/a | n/a | n/a | n/a | n/a | 1 |" in md
+    assert "| NUE (full) | 3 | 20 | 2.00 | 0.300 | 33.3 | 33.3 (3) | 33.3 | 50.0 | 46.2 / 23.1 / 30.8 | 1 |" in md
     assert list(D.record_diagnostics(recs, methods=["NUE (full)"])) == ["nue"]
     js = D.to_jsonable(d)
     assert js["fr"]["p_forward_after_blocked"] is None and json.dumps(js, allow_nan=False)
@@ -94,8 +98,8 @@ def test_report_section_shows_na_without_trajectories(tmp_path):
     from nue.evaluate.report import closed_loop_markdown, render_results_md
 
     text = render_results_md([rec([], [], trajectory=False, steps=4, collisions=1)], {"command": "x"})
-    assert "## Closed-loop diagnostics" in text and "| NUE (full) | 1 | 4 | 1.00 | 0.250 | n/a | n/a | n/a | n/a | 1 |" in text
-    assert "| 33.3 | 33.3 (3) | 40.0 |" in closed_loop_markdown([rec(*EP1)])
+    assert "## Closed-loop diagnostics" in text and "| NUE (full) | 1 | 4 | 1.00 | 0.250 | n/a | n/a | n/a | n/a | n/a | 1 |" in text
+    assert "| 33.3 | 33.3 (3) | 33.3 | 40.0 |" in closed_loop_markdown([rec(*EP1)])
 
 
 # --- map controls -------------------------------------------------------------------------------
@@ -222,6 +226,33 @@ def test_map_controls(model_demos):
     assert "n/a" in M.format_map_controls(fr)
 
 
+def test_blocked_steps_from_poses():
+    """Forward moves of 0.25 m but one of 0.1 m (slid along a wall) and one of 0 (stopped): the steps after
+    those two are found; a turn that does not move is not a blocked move."""
+    xy = [(0, 0), (0.25, 0), (0.35, 0), (0.35, 0), (0.35, 0), (0.60, 0), (0.85, 0)]
+    executed = np.array([F, F, F, L, F, F, F], np.int8)  # step 3 turns (no move), step 6 is the last
+    pose = np.array([(x, y, 0.0) for x, y in xy], np.float32)
+    data = SimpleNamespace(episodes=[{"executed": executed, "pose": pose, "action": executed},
+                                     {"action": np.array([F, F], np.int8), "pose": np.zeros((2, 3), np.float32)}])
+    ep, st = M.blocked_steps(data, forward_step=0.25, forward=F)
+    assert ep.tolist() == [0, 0, 1] and st.tolist() == [2, 3, 1]  # old collections without "executed": the labels
+
+
+def test_after_blocked(model_demos):
+    """The fixture's poses never move, so every step after an executed forward move is after a blocked one."""
+    from nue.train.dataset import DemoSet
+
+    root, ckpts = model_demos
+    data = DemoSet(root, "heldout")
+    want = [(e, t + 1) for e, a in enumerate(data.episodes) for t in range(len(a["action"]) - 1) if a["executed"][t] == F]
+    labels = [data.episodes[e]["action"][t] == F for e, t in want]
+    for name in ("nue", "fr"):
+        ab = M.after_blocked(ckpts[name], data, forward_step=0.25)
+        assert ab.steps == len(want) > 0 and ab.expert_forward == pytest.approx(np.mean(labels))
+        assert 0 <= ab.policy_forward <= 1 and ab.policy_argmax_forward in {k / ab.steps for k in range(ab.steps + 1)}
+    assert "| expert label forward % |" in M.format_after_blocked(ab)
+
+
 # --- CLI ----------------------------------------------------------------------------------------
 def assert_clean_error(res, *fragments):
     assert res.returncode == 2, res.stderr
@@ -238,7 +269,7 @@ def test_cli_diagnose_records(tmp_path):
     path.write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs))
     res = nue_here("diagnose", "--records", path, "--method", "nue", "--out", out)
     assert res.returncode == 0, res.stderr
-    assert "| NUE (full) | 2 | 13 | 2.00 | 0.308 | 33.3 | 33.3 (3) | 50.0 |" in res.stdout and "| FR |" not in res.stdout
+    assert "| NUE (full) | 2 | 13 | 2.00 | 0.308 | 33.3 | 33.3 (3) | 33.3 | 50.0 |" in res.stdout and "| FR |" not in res.stdout
     assert json.loads(out.read_text())["records"]["nue"]["turns"] == 6
     bad = tmp_path / "bad.jsonl"
     bad.write_text(path.read_text() + "{not json\n")
@@ -263,7 +294,8 @@ def test_cli_diagnose_data_and_checkpoint(model_demos, tmp_path):
     assert "## Map controls" in res.output and "| mirrored left-right |" in res.output
     assert "## Previous-action probe" in res.output
     js = json.loads((tmp_path / "d.json").read_text())
-    assert set(js) == {"map_controls", "probe"} and js["probe"]["houses"] == 2
+    assert set(js) == {"map_controls", "after_blocked", "probe"} and js["probe"]["houses"] == 2
+    assert "## After a blocked move" in res.output and js["after_blocked"]["steps"] > 0
     one = _write_demos(tmp_path / "one", 1, 1, 5, 2, np.random.default_rng(3))
     res = CliRunner().invoke(app, ["diagnose", "--data", str(one)])
     assert res.exit_code == 0 and "n/a: the probe needs episodes from at least 2 houses" in res.output

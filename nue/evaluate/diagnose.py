@@ -9,7 +9,9 @@ Per method (records grouped by canonical method key), pooled over its episodes:
   choosing MOVE_FORWARD again. The simulator slides a blocked move along the obstacle, so most blocked
   moves still advance (v3 NUE: median 0.21 m of a 0.25 m step); P(forward | stuck) counts only the
   blocked moves that advanced less than ``STUCK_FRACTION`` of the forward step (from the poses), where
-  another forward move is the wall-pushing the diagnostic is after;
+  another forward move is the wall-pushing the diagnostic is after; P(blocked again | blocked): over the
+  same steps t + 1, the fraction whose move was blocked too (a forward move into the obstacle again,
+  whatever it advanced), so forward moves that cleared the obstacle do not count;
 * turn reversals: over the turns at steps t >= 1, the fraction whose step t - 1 was the opposite turn;
 * action histogram: the fraction of steps per action of the task preset.
 
@@ -56,6 +58,8 @@ class TrajectoryCounts:
     """Steps t + 1 (t + 1 < T) whose step t was blocked and advanced < ``STUCK_FRACTION`` x the forward step."""
     forward_after_stuck: int
     """Of those, how many chose MOVE_FORWARD."""
+    blocked_again: int
+    """Steps t + 1 (t + 1 < T) whose step t was blocked and which were blocked too."""
     turns: int
     """Turns (left or right) at steps t >= 1."""
     reversals: int
@@ -83,13 +87,14 @@ def trajectory_counts(traj: Trajectory, task: str | TaskConfig = "paper") -> Tra
     fwd, left, right = (task.action_id(n) for n in ("MOVE_FORWARD", "TURN_LEFT", "TURN_RIGHT"))
     nxt = a[1:][c[:-1]]  # actions at t + 1 after a blocked step t
     nxt_stuck = a[1:][stuck[:-1]]
+    again = c[1:] & c[:-1]
     cur, prev = a[1:], a[:-1]
     turns = (cur == left) | (cur == right)
     reversed_ = ((cur == left) & (prev == right)) | ((cur == right) & (prev == left))
     if a.size and (a.min() < 0 or a.max() >= len(task.actions)):
         raise ValueError(f"trajectory: action id {int(a.max())} outside task preset {task.name!r}")
     return TrajectoryCounts(int(a.size), int(c.sum()), int(nxt.size), int((nxt == fwd).sum()), int(nxt_stuck.size),
-                            int((nxt_stuck == fwd).sum()), int(turns.sum()),
+                            int((nxt_stuck == fwd).sum()), int(again.sum()), int(turns.sum()),
                             int(reversed_.sum()), tuple(int(v) for v in np.bincount(a, minlength=len(task.actions))))
 
 
@@ -133,6 +138,10 @@ class RecordDiagnostics:
         return _ratio(self.counts.forward_after_stuck, self.counts.after_stuck)
 
     @property
+    def p_blocked_again(self) -> float:
+        return _ratio(self.counts.blocked_again, self.counts.after_blocked)
+
+    @property
     def turn_reversal_rate(self) -> float:
         return _ratio(self.counts.reversals, self.counts.turns)
 
@@ -148,6 +157,7 @@ class RecordDiagnostics:
                 "collisions_per_episode": self.collisions_per_episode, "collisions_per_step": self.collisions_per_step,
                 "p_forward_after_blocked": self.p_forward_after_blocked, "after_blocked_steps": self.counts.after_blocked,
                 "p_forward_after_stuck": self.p_forward_after_stuck, "after_stuck_steps": self.counts.after_stuck,
+                "p_blocked_again": self.p_blocked_again,
                 "turn_reversal_rate": self.turn_reversal_rate, "turns": self.counts.turns,
                 "action_fractions": self.action_fractions, "counts": asdict(self.counts)}
 
@@ -157,7 +167,7 @@ def record_diagnostics(records: Sequence[EpisodeRecord], task: str | TaskConfig 
     """Diagnostics per canonical method key, in table order; ``methods`` keeps only those (any alias)."""
     task = get_task(task)
     keep = {canonical_method(m) for m in methods}
-    zero = TrajectoryCounts(0, 0, 0, 0, 0, 0, 0, 0, (0,) * len(task.actions))
+    zero = TrajectoryCounts(0, 0, 0, 0, 0, 0, 0, 0, 0, (0,) * len(task.actions))
     out = {}
     for key, recs in by_method(records).items():
         if keep and key not in keep:
@@ -219,14 +229,14 @@ def format_record_diagnostics(diags: dict[str, RecordDiagnostics]) -> str:
     """Markdown table, one row per method: episodes, steps, collisions, P(forward | blocked), reversals, actions."""
     names = next(iter(diags.values())).actions if diags else action_short_names()
     head = ["method", "episodes", "steps", "collisions / episode", "collisions / step",
-            "P(forward \\| blocked) %", "P(forward \\| stuck) % (n)", "turn reversals %", f"actions % ({' / '.join(names)})", "no trajectory"]
+            "P(forward \\| blocked) %", "P(forward \\| stuck) % (n)", "P(blocked again \\| blocked) %", "turn reversals %", f"actions % ({' / '.join(names)})", "no trajectory"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for key, d in diags.items():
         hist = d.action_fractions
         acts = "n/a" if not d.counts.steps else " / ".join(fmt(hist[n], ".1f", 100) for n in d.actions)
         lines.append(f"| {method_label(key)} | {d.episodes} | {d.steps} | {fmt(d.collisions_per_episode, '.2f')} | "
                      f"{fmt(d.collisions_per_step, '.3f')} | {fmt(d.p_forward_after_blocked, '.1f', 100)} | "
-                     f"{_stuck_cell(d)} | "
+                     f"{_stuck_cell(d)} | {fmt(d.p_blocked_again, '.1f', 100)} | "
                      f"{fmt(d.turn_reversal_rate, '.1f', 100)} | {acts} | {d.without_trajectory} |")
     return "\n".join(lines) + "\n"
 
@@ -239,7 +249,9 @@ DIAGNOSTICS_NOTES = (
     "Collisions from the records' counts (steps whose forward move was blocked); P(forward | blocked): of the steps "
     "right after a blocked forward move, the share that tried forward again (blocked moves slide along the obstacle, "
     "so most still advance); P(forward | stuck): the same after the blocked moves that advanced less than half a "
-    "step, with their count in brackets; turn reversals: of the turns, the share "
+    "step, with their count in brackets; P(blocked again | blocked): of the steps right after a blocked move, the "
+    "share blocked too (pushing into the obstacle again; forward moves that cleared it do not count); turn "
+    "reversals: of the turns, the share "
     "right after the opposite turn. Both, and the action shares, pool the steps of the episodes that carry a "
     "trajectory; n/a where no record of the method has one (records made before trajectories were stored)."
 )

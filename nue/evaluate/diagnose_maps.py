@@ -1,4 +1,5 @@
-"""Do the memory maps leak the agent's own history? Diagnostics on demonstration data (``nue diagnose --data``).
+"""Diagnostics on demonstration data (``nue diagnose --data``): do the memory maps leak the agent's own
+history, and what does a policy do where the demonstrations bumped into something?
 
 The maps I_u (1, h, w) and I_cog (64, h, w) are rendered before the memory learns the current frame,
 so they can encode the previous action (after a left turn the newly seen left edge of I_u is high).
@@ -10,7 +11,11 @@ Two tools:
 * **previous-action probe** (:func:`previous_action_probe`): multinomial logistic regression from
   I_u average-pooled to 5 x 6 blocks (log1p; optionally + the mean per-pixel norm of I_cog) at step t
   to the executed action at t - 1, leave-one-house-out; the same probe on maps permuted across the
-  steps of each house is the control (it should sit at chance).
+  steps of each house is the control (it should sit at chance);
+* **after a blocked move** (:func:`after_blocked`): at the demonstration steps that follow an executed
+  forward move which advanced less than 96% of the task's step (blocked, sliding or not), the share of
+  expert labels that say forward and a checkpoint's mean P(forward) and argmax-forward rate there — the
+  offline counterpart of the closed-loop P(forward | previous move blocked) of :mod:`nue.evaluate.diagnose`.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import copy
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 from sklearn.linear_model import LogisticRegression
 from sklearn.metrics import balanced_accuracy_score
 from sklearn.model_selection import LeaveOneGroupOut
@@ -125,6 +131,75 @@ def map_controls(checkpoint, data, seed: int = 0, min_gap: int = 10, max_episode
         res = evaluate(model, with_maps(data, cond, rng, min_gap), cfg, device, max_episodes=max_episodes)
         acc[cond], bal[cond] = res["action_accuracy"], res["balanced_accuracy"]
     return MapControls(str(checkpoint), cfg.name, True, n_eps, steps, acc, bal)
+
+
+# --- after a blocked move -----------------------------------------------------------------------
+BLOCKED_SLACK = 0.96
+"""A forward move that advanced less than this fraction of ``forward_step`` was blocked."""
+
+
+def blocked_steps(data, forward_step: float, forward: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(episode, step) (K,), (K,) of every step t + 1 whose step t executed ``forward`` and moved less than
+    :data:`BLOCKED_SLACK` x ``forward_step`` in xy (from the stored poses)."""
+    eps, steps = [], []
+    for e, a in enumerate(data.episodes):
+        executed = np.asarray(a["executed"] if "executed" in a else a["action"])
+        moved = np.linalg.norm(np.diff(np.asarray(a["pose"], dtype=np.float64)[:, :2], axis=0), axis=1)
+        t = np.nonzero((executed[:-1] == forward) & (moved < BLOCKED_SLACK * forward_step))[0]
+        eps.append(np.full(len(t), e)), steps.append(t + 1)
+    return (np.concatenate(eps).astype(np.int64), np.concatenate(steps).astype(np.int64)) if eps else \
+        (np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+
+@dataclass(frozen=True)
+class AfterBlocked:
+    """What the expert and a checkpoint do at the demonstration steps right after a blocked forward move."""
+
+    checkpoint: str
+    model: str
+    """Model preset name."""
+    steps: int
+    """Steps right after a blocked forward move."""
+    expert_forward: float | None
+    """Share of them whose expert label is forward (None: no such step)."""
+    policy_forward: float | None
+    """The checkpoint's mean P(forward) there."""
+    policy_argmax_forward: float | None
+    """Share of them where forward is the checkpoint's most likely action."""
+
+
+def after_blocked(checkpoint, data, forward_step: float, forward: int = 0, device: str = "cpu") -> AfterBlocked:
+    """:class:`AfterBlocked` of ``checkpoint`` on ``data`` (a ``DemoSet``). Each episode holding such a step is run
+    whole through ``forward_sequence``, so a recurrent policy sees the history it would have had."""
+    model, _ = load_policy(checkpoint, device)
+    cfg = model.config
+    data.check_layout(cfg)
+    eps, steps = blocked_steps(data, forward_step, forward)
+    if not len(eps):
+        return AfterBlocked(str(checkpoint), cfg.name, 0, None, None, None)
+    labels, p_fwd, top = [], [], []
+    model.eval()
+    with torch.no_grad():
+        for e in np.unique(eps):
+            t = np.arange(data.lengths[e])
+            batch = data.batch(np.full((len(t), 1), e), t[:, None], cfg, device)
+            out = model.forward_sequence(batch.inp, model.initial_state(1, device),
+                                         torch.zeros(len(t), 1, dtype=torch.bool, device=device))
+            probs = out.logits.float().softmax(-1).reshape(len(t), -1).cpu().numpy()
+            at = steps[eps == e]
+            labels.append(batch.action.reshape(-1).cpu().numpy()[at] == forward)
+            p_fwd.append(probs[at, forward])
+            top.append(probs[at].argmax(-1) == forward)
+    mean = lambda xs: float(np.concatenate(xs).mean())  # noqa: E731
+    return AfterBlocked(str(checkpoint), cfg.name, len(eps), mean(labels), mean(p_fwd), mean(top))
+
+
+def format_after_blocked(ab: AfterBlocked) -> str:
+    """One Markdown table row set: expert and policy forward rates right after a blocked move."""
+    return (f"At the {ab.steps} demonstration steps right after a blocked forward move (`{ab.checkpoint}`, {ab.model})\n\n"
+            "| expert label forward % | policy mean P(forward) % | policy argmax forward % |\n|---|---|---|\n"
+            f"| {fmt(ab.expert_forward, '.1f', 100)} | {fmt(ab.policy_forward, '.1f', 100)} | "
+            f"{fmt(ab.policy_argmax_forward, '.1f', 100)} |\n")
 
 
 # --- previous-action probe ----------------------------------------------------------------------
