@@ -256,9 +256,7 @@ def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = Tr
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    current = [r for r in records if not is_earlier_recipe(r.method)]
-    earlier = [r for r in records if is_earlier_recipe(r.method)]
-    rows = build_table(current)
+    rows = build_table(records)
     paper = paper_table() if reference else None
     md = (f"# Table I\n\n{format_markdown(rows, paper)}\n{NOTES}\n\n## Episodes per cell (successes / episodes)\n\n"
           f"{format_counts_markdown(rows)}\n## Paired differences to NUE\n\n{format_paired_markdown(paired_differences(records))}"
