@@ -18,7 +18,7 @@ from nue.cli import main
 from nue.errors import ConfigError
 from nue.evaluate.report import load_records
 from nue.recipe import RECIPES, TABLE_I_MODELS, StepPlan, estimate, format_estimate, get_recipe
-from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, plan_stages, reproduce, train_config
+from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, _run_training, plan_stages, reproduce, train_config
 from nue.train.checkpoint import load_policy
 
 EPISODES = Path(__file__).resolve().parents[1] / "episodes"
@@ -85,6 +85,26 @@ def test_a_killed_run_resumes_without_redoing_a_stage(run):
     for part, stamps in before.items():  # collected episodes, the finished model's run folder, the stage markers
         now = _stamps(out / part)
         assert {k: now[k] for k in stamps} == stamps, part
+
+
+def test_a_recipe_with_dagger_rounds_trains_through_them(run, tmp_path):
+    """The training stage of a recipe with a DAgger round, on the quick run's demonstrations: behaviour cloning
+    (round 0), then the policy drives the recipe's training episodes with the expert labelling, and round 1
+    retrains on both; the stage's best checkpoint is round 1's."""
+    out = run[0]
+    recipe = get_recipe("quick").replace(name="quick_dagger", models=("fr",), swap_maps=(), dagger_rounds=1,
+                                         dagger_beta=0.5, dagger_steps=2, dagger_episodes_per_bin=1)
+    folders = RunFolders(tmp_path / "run", out.parent / "scenes", EPISODES)
+    folders.out.mkdir()
+    (folders.out / "demos").symlink_to(out / "demos", target_is_directory=True)
+    done = {}
+    _run_training(recipe, folders, ["train/fr"], workers=1, ray_address=None, device="cpu", progress=False,
+                  finish=lambda stage, seconds, result: done.update({stage: result}))
+    rounds = done["train/fr"]["rounds"]
+    assert [r["round"] for r in rounds] == [0, 1] and rounds[1]["beta"] == 0.5
+    assert rounds[1]["collected"]["episodes"] == 3  # 1 house x 3 bins x the first episode
+    assert Path(done["train/fr"]["best"]) == Path(rounds[1]["best"]) and "round_1" in rounds[1]["best"]
+    assert Path(rounds[1]["best"]).is_file() and rounds[1]["data"].endswith("data_r1")
 
 
 def test_a_rerun_with_another_recipe_is_refused(run):
