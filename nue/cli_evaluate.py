@@ -168,7 +168,9 @@ def diagnose_cmd(
         if checkpoint is not None:
             result["map_controls"] = M.map_controls(checkpoint, demos, seed=seed, max_episodes=max_episodes)
             typer.echo("## Map controls\n\n" + M.format_map_controls(result["map_controls"]))
-            result["after_blocked"] = M.after_blocked(checkpoint, demos, get_task(demos.manifest.task).forward_step)
+            demo_task = get_task(demos.manifest.task)
+            result["after_blocked"] = M.after_blocked(checkpoint, demos, demo_task.forward_step,
+                                                      demo_task.action_id("MOVE_FORWARD"))
             typer.echo("## After a blocked move\n\n" + M.format_after_blocked(result["after_blocked"]))
         try:
             result["probe"] = M.previous_action_probe(demos, seed=seed, max_steps=probe_steps, with_cog=probe_cog)

@@ -146,9 +146,11 @@ def blocked_steps(data, forward_step: float, forward: int = 0) -> tuple[np.ndarr
         executed = np.asarray(a["executed"] if "executed" in a else a["action"])
         moved = np.linalg.norm(np.diff(np.asarray(a["pose"], dtype=np.float64)[:, :2], axis=0), axis=1)
         t = np.nonzero((executed[:-1] == forward) & (moved < BLOCKED_SLACK * forward_step))[0]
-        eps.append(np.full(len(t), e)), steps.append(t + 1)
-    return (np.concatenate(eps).astype(np.int64), np.concatenate(steps).astype(np.int64)) if eps else \
-        (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        eps.append(np.full(len(t), e, dtype=np.int64))
+        steps.append((t + 1).astype(np.int64))
+    if not eps:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(eps), np.concatenate(steps)
 
 
 @dataclass(frozen=True)
