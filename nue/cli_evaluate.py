@@ -104,11 +104,15 @@ def report_cmd(
     results_md: Optional[Path] = typer.Option(None, help="Also write this RESULTS.md."),
     command: str = typer.Option("", help="The evaluation command, recorded in RESULTS.md."),
     task: str = typer.Option("paper", help="Task preset of the records (its action ids, for the closed-loop diagnostics)."),
+    episode_set: list[str] = typer.Option([], "--set", help="NAME=FILE: records of a further episode set (e.g. "
+                                          "val252=results/records_val252.jsonl), its own section in RESULTS.md and "
+                                          "report folder OUT/NAME; repeatable."),
 ):
     """Table I (SR / SPL / DTS per difficulty, CIs, paired differences to NUE) and coverage."""
     import json
     import platform
 
+    from nue.errors import ConfigError
     from nue.evaluate.report import load_records, render_results_md, write_report
     from nue.viz.coverage import write_coverage_figure
 
@@ -116,13 +120,24 @@ def report_cmd(
     if results_md:
         check_output_file(results_md)
     recs = load_records(*records)
+    sets = {}
+    for spec in episode_set:
+        name, sep, path = spec.partition("=")
+        if not sep or not name or not path:
+            raise ConfigError("--set", f"expected NAME=FILE, got {spec!r}")
+        if name in sets:
+            raise ConfigError("--set", f"episode set {name!r} given twice")
+        sets[name] = load_records(Path(path))
     paths = {**write_report(recs, out, task=task), **write_coverage_figure(recs, out)}
+    for name, set_recs in sets.items():
+        write_report(set_recs, out / name, task=task)
+        write_coverage_figure(set_recs, out / name)
     typer.echo((out / "table.md").read_text() if (out / "table.md").is_file() else "")
     if results_md:
         meta_path = results_md.parent / f"{results_md.stem}.meta.json"
         meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {
             "command": command, "date": "", "commit": "", "machine": f"{platform.machine()}, {os.cpu_count()} CPUs"}
-        results_md.write_text(render_results_md(recs, meta, task))
+        results_md.write_text(render_results_md(recs, meta, task, sets=sets))
         typer.echo(f"wrote {results_md}")
     typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
 

@@ -32,8 +32,7 @@ from pathlib import Path
 from typing import Callable
 
 from nue.errors import ConfigError, DataError
-from nue.evaluate.report import (NOTES, build_table, format_counts_markdown, format_markdown, format_paired_markdown,
-                                 load_records, paired_differences, paper_table, render_results_md, write_report)
+from nue.evaluate.report import load_records, render_results_md, write_report
 from nue.evaluate.runner import EvalConfig, episode_files, run_eval
 from nue.jobs import Job, fail_point, run_jobs
 from nue.policy.config import get_model_config
@@ -342,15 +341,6 @@ def report_tables(recipe: Recipe, folders: RunFolders) -> dict[str, list]:
     return tables
 
 
-def _set_section(name: str, records) -> str:
-    spec = get_episode_set(name)
-    rows = build_table(records)
-    diffs = paired_differences(records)
-    return (f"## Table I on `{name}`: {spec.description}\n\n{format_markdown(rows, paper_table())}\n{NOTES}\n\n"
-            f"Episodes per cell (successes / episodes):\n\n{format_counts_markdown(rows)}\n"
-            + (f"Paired differences to NUE (95% paired bootstrap):\n\n{format_paired_markdown(diffs)}\n" if diffs else ""))
-
-
 def write_results(recipe: Recipe, folders: RunFolders) -> Path:
     """``OUT/report/<table>/`` for every table and ``OUT/RESULTS.md`` (the first set in full, then the others)."""
     tables = report_tables(recipe, folders)
@@ -371,8 +361,7 @@ def write_results(recipe: Recipe, folders: RunFolders) -> Path:
                            f"{100 * collected.get('expert_success_rate', 0):.1f}%"),
         "stage wall-clock": "; ".join(f"{s} {format_duration(m['seconds'])}" for s, m in walls.items() if m),
     }
-    text = render_results_md(tables[main], meta, recipe.task)
-    text += "".join(f"\n{_set_section(name, recs)}" for name, recs in tables.items() if name != main)
+    text = render_results_md(tables[main], meta, recipe.task, sets={k: v for k, v in tables.items() if k != main})
     path = folders.out / "RESULTS.md"
     path.write_text(text)
     return path

@@ -224,3 +224,33 @@ def test_seen_floor_cells_rendered_occlusion(box_nav, box_renderer):
     tracker(step)
     tracker(step)
     assert tracker.areas[0] == tracker.areas[1] == pytest.approx(seen.sum() * 0.0025)
+
+
+def test_results_md_gives_each_further_episode_set_its_own_section(tmp_path, capsys):
+    """``sets``: a section per further set, after the main tables and before the discussion, with that set's own
+    counts and paired differences (FR lost all 4 there: -50 points against NUE's 2 / 4); ``nue report --set`` writes
+    the same text and a report folder per set."""
+    main = hand_records() + [rec(i, d, True, method="fr") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
+    plain = hand_records() + [rec(i, d, False, method="fr") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
+    meta = {"command": "x", "discussion": "the end"}
+    text = R.render_results_md(main, meta, sets={"val_plain": plain})
+    assert text.index("## Table I on `val_plain`: 14 houses of the held-out plain") < text.index("## Discussion")
+    section = text.split("## Table I on `val_plain`")[1].split("## Discussion")[0]
+    assert "| FR | 0 / 2 | 0 / 1 | 0 / 1 | 0 / 4 |" in section and "| FR | 2 / 2 |" not in section
+    assert "| FR | 4 | -50.0 [" in section and "| FR | 4 | +50.0 [" in text.split("## Table I on")[0]
+    assert R.render_results_md(main, meta) == text.split("## Table I on `val_plain`")[0] + "## Discussion\n\nthe end\n"
+    # the same through the CLI, with the meta beside RESULTS.md
+    from tests.test_bad_input import run_cli
+
+    files = {}
+    for name, recs in (("main", main), ("plain", plain)):
+        files[name] = tmp_path / f"{name}.jsonl"
+        files[name].write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs))
+    (tmp_path / "RESULTS.meta.json").write_text(json.dumps(meta))
+    code, out, err = run_cli(capsys, "report", files["main"], "--set", f"val_plain={files['plain']}",
+                             "--out", tmp_path / "rep", "--results-md", tmp_path / "RESULTS.md")
+    assert code == 0, err
+    assert (tmp_path / "RESULTS.md").read_text() == text
+    assert (tmp_path / "rep" / "val_plain" / "table.md").is_file()
+    code, out, err = run_cli(capsys, "report", files["main"], "--set", "val_plain", "--out", tmp_path / "rep2")
+    assert code == 2 and "NAME=FILE" in err and not (tmp_path / "rep2").exists()

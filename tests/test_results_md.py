@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from nue.evaluate.report import load_records, render_results_md
+from nue.evaluate.report import load_records, render_results_md, results_set_files
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -17,5 +17,6 @@ def test_results_md_regenerates_from_the_records():
     if not results.is_file():
         pytest.skip("no RESULTS.md committed yet")
     assert records.is_file() and meta.is_file(), "RESULTS.md needs results/records.jsonl and RESULTS.meta.json"
-    text = render_results_md(load_records(records), json.loads(meta.read_text()))
+    sets = {name: load_records(path) for name, path in results_set_files(ROOT).items()}
+    text = render_results_md(load_records(records), json.loads(meta.read_text()), sets=sets)
     assert text == results.read_text()

@@ -295,13 +295,42 @@ def is_earlier_recipe(method: str) -> bool:
     return bool(_EARLIER_RECIPE.search(method))
 
 
-def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, object], task: str = "paper") -> str:
+def set_section_markdown(name: str, records: Sequence[EpisodeRecord], description: str = "",
+                         task: str = "paper") -> str:
+    """RESULTS.md's section of a further episode set ``name``: Table I next to the paper, the episodes per
+    cell, the ordering against the paper's, the paired differences to NUE, coverage and the closed-loop
+    diagnostics, all from ``records`` (that set's). Earlier recipes' ``*_v<N>`` rows are left out of the
+    table and the ordering, as in the main one."""
+    current = [r for r in records if not is_earlier_recipe(r.method)]
+    rows = build_table(current)
+    paper = paper_table()
+    parts = [f"## Table I on `{name}`" + (f": {description}" if description else "") + "\n\n"
+             f"{format_markdown(rows, paper)}\n{NOTES}\n\n"
+             f"Episodes per cell (successes / episodes):\n\n{format_counts_markdown(rows)}"]
+    ordering = _ordering_markdown(rows, paper)
+    if ordering:
+        parts.append(f"Ordering by total SR on `{name}`:\n\n{ordering}")
+    diffs = paired_differences(records)
+    if diffs:
+        parts.append(f"Paired differences to NUE on `{name}` (95% paired bootstrap):\n\n{format_paired_markdown(diffs)}")
+    curves = coverage_curves(records)
+    if curves:
+        parts.append(f"Exploration coverage on `{name}` (mean seen floor area, m²):\n\n"
+                     f"{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
+    if records:
+        parts.append(f"Closed-loop diagnostics on `{name}`:\n\n{closed_loop_markdown(records, task)}")
+    return "\n".join(parts)
+
+
+def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, object], task: str = "paper",
+                      sets: Mapping[str, Sequence[EpisodeRecord]] | None = None) -> str:
     """The text of RESULTS.md, a pure function of the records and ``meta``.
 
     ``meta``: ``command``, ``date``, ``commit``, ``machine`` (shown first), any other keys
     (sorted). Methods named ``<method>_v<N>`` (:func:`is_earlier_recipe`) get their own table after
-    Table I and stay in the paired differences, coverage and diagnostics. Same inputs give the same
-    bytes (the bootstrap is seeded).
+    Table I and stay in the paired differences, coverage and diagnostics. ``sets``: the records of
+    further episode sets (name -> records), each given its own section (:func:`set_section_markdown`)
+    before the discussion. Same inputs give the same bytes (the bootstrap is seeded).
     """
     current = [r for r in records if not is_earlier_recipe(r.method)]
     earlier = [r for r in records if is_earlier_recipe(r.method)]
@@ -338,6 +367,22 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
                      f"area.\n\n{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
     if records:
         parts.append(f"## Closed-loop diagnostics\n\n{closed_loop_markdown(records, task)}")
+    if sets:
+        from nue.sim.episode_sets import EPISODE_SETS  # descriptions of the committed sets
+
+        for name, recs in sets.items():
+            spec = EPISODE_SETS.get(name)
+            parts.append(set_section_markdown(name, recs, spec.description if spec else "", task))
     if meta.get("discussion"):
         parts.append(f"## Discussion\n\n{meta['discussion']}\n")
     return "\n".join(parts)
+
+
+def results_set_files(root) -> dict[str, Path]:
+    """The further episode sets' record files committed beside ``root/results/records.jsonl``:
+    ``results/records_<set>.jsonl`` for each known set (:data:`nue.sim.episode_sets.EPISODE_SETS`, in its
+    order) whose file exists."""
+    from nue.sim.episode_sets import EPISODE_SETS
+
+    base = Path(root) / "results"
+    return {name: base / f"records_{name}.jsonl" for name in EPISODE_SETS if (base / f"records_{name}.jsonl").is_file()}
