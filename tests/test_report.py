@@ -254,3 +254,19 @@ def test_results_md_gives_each_further_episode_set_its_own_section(tmp_path, cap
     assert (tmp_path / "rep" / "val_plain" / "table.md").is_file()
     code, out, err = run_cli(capsys, "report", files["main"], "--set", "val_plain", "--out", tmp_path / "rep2")
     assert code == 2 and "NAME=FILE" in err and not (tmp_path / "rep2").exists()
+
+
+def test_an_episode_ending_off_the_planning_grid_is_left_out_of_dts_only():
+    """A failure whose final geodesic is inf (a pocket the planning grid does not connect to the goal) has no DTS:
+    the DTS mean is over the other episodes (easy: 2.5 from the hand records' failure, not inf), SR and SPL
+    still count it as a failure, and the report names it."""
+    pocket = rec(9, "easy", False, final_geo=math.inf)
+    recs = hand_records() + [pocket]
+    rows = {r.method: r for r in R.build_table(recs)}
+    easy = rows["nue"].cells["easy"]
+    assert easy.n == 3 and easy.successes == 1 and easy.dts == pytest.approx((0.0 + 2.5) / 2)
+    assert easy.spl == pytest.approx(0.5 / 3)
+    assert math.isfinite(rows["nue"].cells["total"].dts)
+    text = R.render_results_md(recs, {"command": "x"})
+    assert "Left out of DTS (1 episode(s); failures in SR and SPL): NUE (full) s0/9," in text
+    assert "Left out of DTS" not in R.render_results_md(hand_records(), {"command": "x"})

@@ -16,7 +16,7 @@ from typing import Iterable, Sequence
 from nue.sim.record import EpisodeRecord
 
 __all__ = ["EpisodeRecord", "aggregate", "collisions", "dts", "format_table", "path_length", "spl", "success",
-           "summarize", "Summary"]
+           "summarize", "Summary", "unreachable_end"]
 
 
 def success(r: EpisodeRecord) -> float:
@@ -33,10 +33,18 @@ def spl(r: EpisodeRecord) -> float:
 
 
 def dts(r: EpisodeRecord) -> float:
-    """Distance to success: 0 on success, else max(final geodesic distance - r, 0)."""
+    """Distance to success: 0 on success, else max(final geodesic distance - r, 0); inf when the episode
+    ended where the planning grid has no path to the goal (:func:`unreachable_end`)."""
     if r.success:
         return 0.0
     return max(r.final_geodesic - r.success_radius, 0.0)
+
+
+def unreachable_end(r: EpisodeRecord) -> bool:
+    """Whether a failed episode ended where the planning grid has no path to the goal (final geodesic inf):
+    a pocket the robot slid into through a gap narrower than the grid's free cells. It has no DTS, so
+    :func:`summarize` leaves it out of the DTS mean; it counts as a failure in SR and SPL."""
+    return not r.success and not math.isfinite(r.final_geodesic)
 
 
 def path_length(r: EpisodeRecord) -> float:
@@ -60,13 +68,16 @@ class Summary:
 
 
 def summarize(records: Sequence[EpisodeRecord]) -> Summary:
-    """Means of the metrics over ``records`` (NaN for an empty group)."""
+    """Means of the metrics over ``records`` (NaN for an empty group); DTS over the episodes that have one
+    (not :func:`unreachable_end`)."""
     n = len(records)
     if n == 0:
         nan = math.nan
         return Summary(0, nan, nan, nan, nan, nan)
     mean = lambda f: sum(f(r) for r in records) / n  # noqa: E731
-    return Summary(n, mean(success), mean(spl), mean(dts), mean(path_length), mean(collisions))
+    reachable = [dts(r) for r in records if not unreachable_end(r)]
+    mean_dts = sum(reachable) / len(reachable) if reachable else math.nan
+    return Summary(n, mean(success), mean(spl), mean_dts, mean(path_length), mean(collisions))
 
 
 def aggregate(records: Iterable[EpisodeRecord], order: Sequence[str] = ("easy", "medium", "hard")) -> dict[str, Summary]:

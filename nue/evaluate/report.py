@@ -27,7 +27,7 @@ from scipy.stats import kendalltau
 
 from nue.evaluate import coverage as cov
 from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, read_records, record_diagnostics
-from nue.evaluate.metrics import dts, spl, success
+from nue.evaluate.metrics import dts, spl, success, unreachable_end
 from nue.evaluate.stats import paired_bootstrap, wilson_interval  # noqa: F401  (re-exported)
 from nue.evaluate.table import (  # noqa: F401  (re-exported)
     DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, method_label, order_methods,
@@ -243,6 +243,16 @@ NOTES = (
 )
 
 
+def unreachable_markdown(records: Sequence[EpisodeRecord]) -> str:
+    """A line naming the episodes left out of DTS (:func:`nue.evaluate.metrics.unreachable_end`), or ''."""
+    ends = sorted((method_label(canonical_method(r.method)), r.scene, r.episode_id) for r in records if unreachable_end(r))
+    if not ends:
+        return ""
+    names = ", ".join(f"{m} {s}/{e}" for m, s, e in ends)
+    return (f"Left out of DTS ({len(ends)} episode(s); failures in SR and SPL): {names}, which ended where the "
+            "planning grid has no path to the goal (a pocket reached through a gap narrower than its free cells).\n")
+
+
 def closed_loop_markdown(records: Sequence[EpisodeRecord], task: str = "paper") -> str:
     """Per-method closed-loop diagnostics (:mod:`nue.evaluate.diagnose`) as a Markdown table plus its notes."""
     return f"{format_record_diagnostics(record_diagnostics(records, task))}\n{DIAGNOSTICS_NOTES}\n"
@@ -259,7 +269,7 @@ def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = Tr
     rows = build_table(records)
     paper = paper_table() if reference else None
     md = (f"# Table I\n\n{format_markdown(rows, paper)}\n{NOTES}\n\n## Episodes per cell (successes / episodes)\n\n"
-          f"{format_counts_markdown(rows)}\n## Paired differences to NUE\n\n{format_paired_markdown(paired_differences(records))}"
+          f"{format_counts_markdown(rows)}\n{unreachable_markdown(records)}## Paired differences to NUE\n\n{format_paired_markdown(paired_differences(records))}"
           f"\n## Closed-loop diagnostics\n\n{closed_loop_markdown(records, task)}")
     paths = {"table.md": out / "table.md", "table.csv": out / "table.csv", "table.tex": out / "table.tex"}
     paths["table.md"].write_text(md)
@@ -306,7 +316,8 @@ def set_section_markdown(name: str, records: Sequence[EpisodeRecord], descriptio
     paper = paper_table()
     parts = [f"## Table I on `{name}`" + (f": {description}" if description else "") + "\n\n"
              f"{format_markdown(rows, paper)}\n{NOTES}\n\n"
-             f"Episodes per cell (successes / episodes):\n\n{format_counts_markdown(rows)}"]
+             f"Episodes per cell (successes / episodes):\n\n{format_counts_markdown(rows)}"
+             + (f"\n{unreachable_markdown(current)}" if unreachable_markdown(current) else "")]
     ordering = _ordering_markdown(rows, paper)
     if ordering:
         parts.append(f"Ordering by total SR on `{name}`:\n\n{ordering}")
@@ -344,7 +355,8 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
         "Image-goal navigation in the layout of the paper's Table I, regenerated from the episode records "
         "by `nue.evaluate.report.render_results_md`.\n",
         f"| | |\n|---|---|\n{info}\n",
-        f"## Episodes per cell (successes / episodes)\n\n{format_counts_markdown(rows)}",
+        f"## Episodes per cell (successes / episodes)\n\n{format_counts_markdown(rows)}"
+        + (f"\n{unreachable_markdown(current)}" if unreachable_markdown(current) else ""),
         f"## Table I: ours next to the paper\n\n{format_markdown(rows, paper)}\n{NOTES}\n",
     ]
     ordering = _ordering_markdown(rows, paper)
