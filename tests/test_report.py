@@ -206,6 +206,7 @@ def test_results_md_puts_earlier_recipes_in_their_own_table():
     assert "| nue_v2 | 4 | 0.0 [0.0, 65.8] |" in earlier and "NUE (full)" not in earlier
     assert "| nue_v2 | 4 | -50.0 [" in text.split("## Paired differences to NUE")[1]
     assert R.is_earlier_recipe("fr_v12") and not R.is_earlier_recipe("fr") and not R.is_earlier_recipe("v2_nue")
+    assert R.is_earlier_recipe("nue_v5a") and R.is_earlier_recipe("nue_v5a+swap") and not R.is_earlier_recipe("nue+swap")
     assert "## Earlier recipes" not in R.render_results_md(hand_records(), {"command": "x"})
 
 

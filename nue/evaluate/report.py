@@ -297,11 +297,13 @@ def _ordering_markdown(rows: Sequence[TableRow], paper: Mapping) -> str:
     return "\n".join(lines) + f"\n\nKendall's tau between the two orderings: {_f(float(tau), '.2f')}.\n"
 
 
-_EARLIER_RECIPE = re.compile(r"_v[0-9]+$")
+_EARLIER_RECIPE = re.compile(r"_v[0-9]+[a-z]?(\+swap)?$")
 
 
 def is_earlier_recipe(method: str) -> bool:
-    """Whether a record's method names an earlier recipe's model (``nue_v2``, ``fr_v1``): a ``_v<N>`` suffix."""
+    """Whether a record's method names an earlier recipe's model (``nue_v2``, ``fr_v1``) or an earlier run of a
+    recipe (``nue_v5a``), with or without the swapped-maps control: a ``_v<N>`` or ``_v<N><letter>`` suffix
+    (then ``+swap``)."""
     return bool(_EARLIER_RECIPE.search(method))
 
 
@@ -363,8 +365,8 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     if ordering:
         parts.append(f"## Ordering by total SR\n\n{ordering}")
     if earlier:
-        parts.append("## Earlier recipes\n\nRows named `<method>_v<N>` are that method trained with an earlier recipe "
-                     "(`checkpoints/README.md`), evaluated on the same episodes with the same seeds; they are left out "
+        parts.append("## Earlier recipes\n\nRows named `<method>_v<N>` are that method trained with an earlier recipe, "
+                     "`<method>_v<N><letter>` an earlier run of a recipe (`checkpoints/README.md`), evaluated on the same episodes with the same seeds; they are left out "
                      "of Table I and the ordering above, and kept in the comparisons below.\n\n"
                      f"{format_markdown(build_table(earlier))}")
     diffs = paired_differences(records)
