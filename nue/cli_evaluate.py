@@ -113,7 +113,8 @@ def report_cmd(
     import platform
 
     from nue.errors import ConfigError
-    from nue.evaluate.report import load_records, render_results_md, write_report
+    from nue.evaluate.report import load_records, write_report
+    from nue.evaluate.results_md import render_results_md
     from nue.viz.coverage import write_coverage_figure
 
     check_output_dir(out, "the report folder")

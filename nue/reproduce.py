@@ -32,7 +32,8 @@ from pathlib import Path
 from typing import Callable
 
 from nue.errors import ConfigError, DataError
-from nue.evaluate.report import load_records, render_results_md, write_report
+from nue.evaluate.report import load_records, write_report
+from nue.evaluate.results_md import render_results_md
 from nue.evaluate.runner import EvalConfig, episode_files, run_eval
 from nue.jobs import Job, fail_point, run_jobs
 from nue.policy.config import get_model_config

@@ -95,7 +95,8 @@ def test_habitat_action_ids():
 
 
 def test_report_section_shows_na_without_trajectories(tmp_path):
-    from nue.evaluate.report import closed_loop_markdown, render_results_md
+    from nue.evaluate.report import closed_loop_markdown
+    from nue.evaluate.results_md import render_results_md
 
     text = render_results_md([rec([], [], trajectory=False, steps=4, collisions=1)], {"command": "x"})
     assert "## Closed-loop diagnostics" in text and "| NUE (full) | 1 | 4 | 1.00 | 0.250 | n/a | n/a | n/a | n/a | n/a | 1 |" in text

@@ -13,6 +13,7 @@ import pytest
 
 from nue.evaluate import coverage as cov
 from nue.evaluate import report as R
+from nue.evaluate import results_md as RM
 from nue.evaluate.metrics import EpisodeRecord
 from nue.sim.task import CameraConfig
 from nue.viz.coverage import write_coverage_figure
@@ -184,11 +185,11 @@ def test_write_report_and_results_md_regenerate(tmp_path):
     assert "## Paired differences to NUE" in paths["table.md"].read_text()
     meta = {"command": "nue eval --split val", "date": "2025-01-02", "commit": "abc1234", "machine": "2 vCPU",
             "task": "paper"}
-    text = R.render_results_md(recs, meta)
+    text = RM.render_results_md(recs, meta)
     (tmp_path / "RESULTS.md").write_text(text)
     jsonl = tmp_path / "records.jsonl"
     jsonl.write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs) + "\n")
-    again = R.render_results_md(R.load_records(jsonl), dict(reversed(list(meta.items()))))
+    again = RM.render_results_md(R.load_records(jsonl), dict(reversed(list(meta.items()))))
     assert again.encode() == (tmp_path / "RESULTS.md").read_bytes()
     for s in ("| command | `nue eval --split val` |", "| commit | abc1234 |", "*59.65*", "Wilson",
               "| NUE (full) | 1 / 2 | 1 / 1 | 0 / 1 | 2 / 4 |", "## Exploration coverage", "## Ordering by total SR"):
@@ -199,15 +200,15 @@ def test_results_md_puts_earlier_recipes_in_their_own_table():
     """``nue_v2`` (all four episodes failed) is not a Table I row and not in the ordering, but has its own table and
     its paired difference to NUE: -0.5 SR (NUE won 2 of the 4 episodes)."""
     recs = hand_records() + [rec(i, d, False, method="nue_v2") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
-    text = R.render_results_md(recs, {"command": "x"})
+    text = RM.render_results_md(recs, {"command": "x"})
     table1 = text.split("## Table I")[1].split("## Earlier recipes")[0]
     earlier = text.split("## Earlier recipes")[1].split("## ")[0]
     assert "| NUE (full) | 4 |" in table1 and "nue_v2" not in table1
     assert "| nue_v2 | 4 | 0.0 [0.0, 65.8] |" in earlier and "NUE (full)" not in earlier
     assert "| nue_v2 | 4 | -50.0 [" in text.split("## Paired differences to NUE")[1]
-    assert R.is_earlier_recipe("fr_v12") and not R.is_earlier_recipe("fr") and not R.is_earlier_recipe("v2_nue")
-    assert R.is_earlier_recipe("nue_v5a") and R.is_earlier_recipe("nue_v5a+swap") and not R.is_earlier_recipe("nue+swap")
-    assert "## Earlier recipes" not in R.render_results_md(hand_records(), {"command": "x"})
+    assert RM.is_earlier_recipe("fr_v12") and not RM.is_earlier_recipe("fr") and not RM.is_earlier_recipe("v2_nue")
+    assert RM.is_earlier_recipe("nue_v5a") and RM.is_earlier_recipe("nue_v5a+swap") and not RM.is_earlier_recipe("nue+swap")
+    assert "## Earlier recipes" not in RM.render_results_md(hand_records(), {"command": "x"})
 
 
 def test_seen_floor_cells_rendered_occlusion(box_nav, box_renderer):
@@ -234,12 +235,12 @@ def test_results_md_gives_each_further_episode_set_its_own_section(tmp_path, cap
     main = hand_records() + [rec(i, d, True, method="fr") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
     plain = hand_records() + [rec(i, d, False, method="fr") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
     meta = {"command": "x", "discussion": "the end"}
-    text = R.render_results_md(main, meta, sets={"val_plain": plain})
+    text = RM.render_results_md(main, meta, sets={"val_plain": plain})
     assert text.index("## Table I on `val_plain`: 14 houses of the held-out plain") < text.index("## Discussion")
     section = text.split("## Table I on `val_plain`")[1].split("## Discussion")[0]
     assert "| FR | 0 / 2 | 0 / 1 | 0 / 1 | 0 / 4 |" in section and "| FR | 2 / 2 |" not in section
     assert "| FR | 4 | -50.0 [" in section and "| FR | 4 | +50.0 [" in text.split("## Table I on")[0]
-    assert R.render_results_md(main, meta) == text.split("## Table I on `val_plain`")[0] + "## Discussion\n\nthe end\n"
+    assert RM.render_results_md(main, meta) == text.split("## Table I on `val_plain`")[0] + "## Discussion\n\nthe end\n"
     # the same through the CLI, with the meta beside RESULTS.md
     from tests.test_bad_input import run_cli
 
@@ -268,6 +269,6 @@ def test_an_episode_ending_off_the_planning_grid_is_left_out_of_dts_only():
     assert easy.n == 3 and easy.successes == 1 and easy.dts == pytest.approx((0.0 + 2.5) / 2)
     assert easy.spl == pytest.approx(0.5 / 3)
     assert math.isfinite(rows["nue"].cells["total"].dts)
-    text = R.render_results_md(recs, {"command": "x"})
+    text = RM.render_results_md(recs, {"command": "x"})
     assert "Left out of DTS (1 episode(s); failures in SR and SPL): NUE (full) s0/9," in text
-    assert "Left out of DTS" not in R.render_results_md(hand_records(), {"command": "x"})
+    assert "Left out of DTS" not in RM.render_results_md(hand_records(), {"command": "x"})

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from nue.evaluate.report import load_records, render_results_md, results_set_files
+from nue.evaluate.report import load_records
+from nue.evaluate.results_md import render_results_md, results_set_files
 
 ROOT = Path(__file__).resolve().parent.parent
 

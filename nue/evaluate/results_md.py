@@ -1,0 +1,126 @@
+"""The text of RESULTS.md, a pure function of episode records and metadata: the main episode set's Table I
+next to the paper, its ordering, the earlier recipes' rows, paired differences, coverage and closed-loop
+diagnostics, then one section per further episode set (``results/records_<set>.jsonl``), then the discussion.
+The tables themselves are :mod:`nue.evaluate.report`'s."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Mapping, Sequence
+
+from nue.evaluate import coverage as cov
+from nue.evaluate.report import (
+    NOTES, ordering_markdown, build_table, closed_loop_markdown, coverage_curves, format_counts_markdown,
+    format_markdown, format_paired_markdown, method_label, paired_differences, paper_table, unreachable_markdown,
+)
+from nue.sim.record import EpisodeRecord
+
+
+def _counts_markdown(records: Sequence[EpisodeRecord], rows) -> str:
+    """Episodes per cell, then the episodes left out of DTS (if any)."""
+    left_out = unreachable_markdown(records)
+    return format_counts_markdown(rows) + (f"\n{left_out}" if left_out else "")
+
+
+_EARLIER_RECIPE = re.compile(r"_v[0-9]+[a-z]?(\+swap)?$")
+
+
+def is_earlier_recipe(method: str) -> bool:
+    """Whether a record's method names an earlier recipe's model (``nue_v2``, ``fr_v1``) or an earlier run of a
+    recipe (``nue_v5a``), with or without the swapped-maps control: a ``_v<N>`` or ``_v<N><letter>`` suffix
+    (then ``+swap``)."""
+    return bool(_EARLIER_RECIPE.search(method))
+
+
+def set_section_markdown(name: str, records: Sequence[EpisodeRecord], description: str = "",
+                         task: str = "paper") -> str:
+    """RESULTS.md's section of a further episode set ``name``: Table I next to the paper, the episodes per
+    cell, the ordering against the paper's, the paired differences to NUE, coverage and the closed-loop
+    diagnostics, all from ``records`` (that set's). Earlier recipes' ``*_v<N>`` rows are left out of the
+    table and the ordering, as in the main one."""
+    current = [r for r in records if not is_earlier_recipe(r.method)]
+    rows = build_table(current)
+    paper = paper_table()
+    parts = [f"## Table I on `{name}`" + (f": {description}" if description else "") + "\n\n"
+             f"{format_markdown(rows, paper)}\n{NOTES}\n\n"
+             f"Episodes per cell (successes / episodes):\n\n{_counts_markdown(current, rows)}"]
+    ordering = ordering_markdown(rows, paper)
+    if ordering:
+        parts.append(f"Ordering by total SR on `{name}`:\n\n{ordering}")
+    diffs = paired_differences(records)
+    if diffs:
+        parts.append(f"Paired differences to NUE on `{name}` (95% paired bootstrap):\n\n{format_paired_markdown(diffs)}")
+    curves = coverage_curves(records)
+    if curves:
+        parts.append(f"Exploration coverage on `{name}` (mean seen floor area, m²):\n\n"
+                     f"{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
+    if records:
+        parts.append(f"Closed-loop diagnostics on `{name}`:\n\n{closed_loop_markdown(records, task)}")
+    return "\n".join(parts)
+
+
+def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, object], task: str = "paper",
+                      sets: Mapping[str, Sequence[EpisodeRecord]] | None = None) -> str:
+    """The text of RESULTS.md, a pure function of the records and ``meta``.
+
+    ``meta``: ``command``, ``date``, ``commit``, ``machine`` (shown first), any other keys
+    (sorted). Methods named ``<method>_v<N>`` (:func:`is_earlier_recipe`) get their own table after
+    Table I and stay in the paired differences, coverage and diagnostics. ``sets``: the records of
+    further episode sets (name -> records), each given its own section (:func:`set_section_markdown`)
+    before the discussion. Same inputs give the same bytes (the bootstrap is seeded).
+    """
+    current = [r for r in records if not is_earlier_recipe(r.method)]
+    earlier = [r for r in records if is_earlier_recipe(r.method)]
+    rows = build_table(current)
+    paper = paper_table()
+    first = ["command", "date", "commit", "machine"]
+    keys = [k for k in first if k in meta] + sorted(k for k in meta if k not in first and k != "discussion")
+    info = "\n".join(f"| {k} | {'`%s`' % meta[k] if k == 'command' else meta[k]} |" for k in keys)
+    parts = [
+        "# Results\n",
+        "Image-goal navigation in the layout of the paper's Table I, regenerated from the episode records "
+        "by `nue.evaluate.results_md.render_results_md`.\n",
+        f"| | |\n|---|---|\n{info}\n",
+        f"## Episodes per cell (successes / episodes)\n\n{_counts_markdown(current, rows)}",
+        f"## Table I: ours next to the paper\n\n{format_markdown(rows, paper)}\n{NOTES}\n",
+    ]
+    ordering = ordering_markdown(rows, paper)
+    if ordering:
+        parts.append(f"## Ordering by total SR\n\n{ordering}")
+    if earlier:
+        parts.append("## Earlier recipes\n\nRows named `<method>_v<N>` are that method trained with an earlier recipe, "
+                     "`<method>_v<N><letter>` an earlier run of a recipe (`checkpoints/README.md`), evaluated on the same episodes with the same seeds; they are left out "
+                     "of Table I and the ordering above, and kept in the comparisons below.\n\n"
+                     f"{format_markdown(build_table(earlier))}")
+    diffs = paired_differences(records)
+    if diffs:
+        parts.append("## Paired differences to NUE\n\nPer method, the mean over the episodes both it and NUE ran "
+                     "(matched on scene and episode id) of its result minus NUE's, with a 95% paired-bootstrap "
+                     "interval (10,000 resamples, seed 0). The episode count resolves the ordering when the "
+                     f"interval excludes 0.\n\n{format_paired_markdown(diffs)}")
+    curves = coverage_curves(records)
+    if curves:
+        parts.append("## Exploration coverage (mean seen floor area, m²)\n\nEpisodes that ended keep their final "
+                     f"area.\n\n{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
+    if records:
+        parts.append(f"## Closed-loop diagnostics\n\n{closed_loop_markdown(records, task)}")
+    if sets:
+        from nue.sim.episode_sets import EPISODE_SETS  # descriptions of the committed sets
+
+        for name, recs in sets.items():
+            spec = EPISODE_SETS.get(name)
+            parts.append(set_section_markdown(name, recs, spec.description if spec else "", task))
+    if meta.get("discussion"):
+        parts.append(f"## Discussion\n\n{meta['discussion']}\n")
+    return "\n".join(parts)
+
+
+def results_set_files(root) -> dict[str, Path]:
+    """The further episode sets' record files committed beside ``root/results/records.jsonl``:
+    ``results/records_<set>.jsonl`` for each known set (:data:`nue.sim.episode_sets.EPISODE_SETS`, in its
+    order) whose file exists."""
+    from nue.sim.episode_sets import EPISODE_SETS
+
+    base = Path(root) / "results"
+    return {name: base / f"records_{name}.jsonl" for name in EPISODE_SETS if (base / f"records_{name}.jsonl").is_file()}
