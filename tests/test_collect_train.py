@@ -192,6 +192,54 @@ def test_training_loss_falls(demos, tmp_path, precision):
     assert list((tmp_path / "run" / "tb").glob("events.out.tfevents.*"))
 
 
+def test_precision_defaults_to_auto_and_resolves_by_hardware(monkeypatch):
+    """The default is ``auto``: bf16 autocast exactly where the CPU runs bfloat16 natively, else fp32."""
+    from nue.train import bc
+
+    assert bc.TrainConfig().precision == "auto"
+    cpu = torch.device("cpu")
+    for native, want in ((True, "bf16"), (False, "fp32")):
+        monkeypatch.setattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", lambda native=native: native)
+        assert bc.resolve_precision("auto", cpu) == want
+        assert bc.resolve_precision("fp32", cpu) == "fp32" and bc.resolve_precision("bf16", cpu) == "bf16"
+
+
+def test_auto_precision_is_recorded_resolved_in_the_checkpoint(demos, tmp_path):
+    from nue.train.bc import TrainConfig, resolve_precision, train
+    from nue.train.checkpoint import load_checkpoint
+
+    res = train(TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=2, batch_size=4, warmup=1,
+                            eval_every=2), progress=False)
+    stored = load_checkpoint(res.last)["train_config"]
+    assert stored["precision"] == "auto"
+    assert stored["precision_resolved"] == resolve_precision("auto", torch.device("cpu")) in ("bf16", "fp32")
+
+
+def test_resume_mismatches_names_changed_settings_and_data():
+    from nue.train.bc import resume_mismatches
+
+    stored = {"train_config": {"lr": 1e-3, "steps": 100, "out": "a", "precision": "fp32", "precision_resolved": "fp32",
+                               "eval_houses": (0, 1), "old_field": 1}, "manifest_hash": "aaaa"}
+    same = {"train_config": {"lr": 1e-3, "steps": 100, "out": "b", "precision": "auto", "precision_resolved": "fp32",
+                             "eval_houses": [0, 1]}, "manifest_hash": "aaaa"}
+    assert resume_mismatches(stored, same) == []  # another --out, auto resolving to the same, list vs tuple
+    changed = {"train_config": {**same["train_config"], "lr": 2e-3, "precision_resolved": "bf16"}, "manifest_hash": "bbbb"}
+    assert resume_mismatches(stored, changed) == ["lr 0.001 -> 0.002", "precision_resolved 'fp32' -> 'bf16'",
+                                                  "training data (manifest aaaa -> bbbb)"]
+    assert resume_mismatches({}, changed) == []  # a checkpoint that recorded nothing
+
+
+def test_resumed_training_refuses_other_settings(demos, tmp_path):
+    from nue.errors import CheckpointError
+    from nue.train.bc import TrainConfig, train
+
+    cfg = TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=2, batch_size=4, warmup=1, eval_every=2)
+    train(cfg, progress=False)
+    with pytest.raises(CheckpointError, match=r"other settings \(lr 0.001 -> 0.002\)"):
+        train(cfg.replace(lr=2e-3), resume=True, progress=False)
+    assert train(cfg.replace(select_workers=2), resume=True, progress=False).steps_this_call == 0
+
+
 @pytest.mark.parametrize("model, extra", [("nav_a3c", {}), ("nue", {"map_dropout": 0.5, "buffer_episodes": 3})],
                          ids=["sequences", "buffers+map-dropout"])
 def test_resume_continues_from_the_saved_step_and_matches(demos, tmp_path, model, extra):

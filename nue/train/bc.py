@@ -78,10 +78,11 @@ class TrainConfig:
     """Seed of the model initialisation and of batch sampling."""
     device: str = "cpu"
     """Training device."""
-    precision: str = "fp32"
-    """``fp32``; ``bf16``: forward and backward under bfloat16 autocast (weights, optimiser and loss stay
-    float32), about 2x the samples/s on CPUs with AVX512-BF16 (``make bench``); ``auto``: bf16 where the
-    device supports it natively (CPU with AVX512-BF16/AMX, CUDA with bf16), else fp32."""
+    precision: str = "auto"
+    """``auto`` (default): ``bf16`` where the device runs bfloat16 natively (CPU with AVX512-BF16/AMX, CUDA
+    with bf16), else ``fp32``; ``bf16``: forward and backward under bfloat16 autocast (weights, optimiser and
+    loss stay float32), about 2x the samples/s on CPUs with AVX512-BF16 (``make bench``) and the same
+    held-out accuracy step for step (fp32 vs bf16 curves in ``benchmarks/README.md``); ``fp32``: no autocast."""
     map_dropout: float = 0.0
     """Probability per sample that its memory maps (I_u, I_cog) are replaced by those of another sample of
     the batch, so the policy cannot rely on the maps alone (e.g. for obstacle avoidance); 0 = off."""
@@ -127,6 +128,26 @@ def resolve_precision(precision: str, device: torch.device) -> str:
         return "bf16" if torch.ops.mkldnn._is_mkldnn_bf16_supported() else "fp32"
     except (AttributeError, RuntimeError):  # pragma: no cover - builds without oneDNN
         return "fp32"
+
+
+RESUME_FREE = frozenset({"out", "data", "device", "verify_data", "select_workers", "select_scenes_root", "precision"})
+"""``TrainConfig`` fields a resumed run may change: where things are and how many workers select, not what is
+trained (``precision`` is compared as resolved; the data by its manifest hash)."""
+
+
+def resume_mismatches(stored: dict, now: dict) -> list[str]:
+    """What a resumed run would change: ``"name stored -> now"`` per differing training setting (fields in
+    both configs only, so older checkpoints compare what they recorded) and the data's manifest hash. Both
+    arguments are checkpoint payloads / metas (``train_config``, ``manifest_hash``)."""
+
+    def norm(v):
+        return [norm(x) for x in v] if isinstance(v, (list, tuple)) else v
+
+    a, b = dict(stored.get("train_config") or {}), dict(now.get("train_config") or {})
+    out = [f"{k} {a[k]!r} -> {b[k]!r}" for k in sorted((a.keys() & b.keys()) - RESUME_FREE) if norm(a[k]) != norm(b[k])]
+    if stored.get("manifest_hash") and stored["manifest_hash"] != now.get("manifest_hash"):
+        out.append(f"training data (manifest {stored['manifest_hash']} -> {now.get('manifest_hash')})")
+    return out
 
 
 def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainConfig, device: torch.device):
@@ -276,6 +297,10 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
         ck = load_checkpoint(out_dir / "last.pt")
         if PolicyHeader.from_dict(ck, out_dir / "last.pt").model != model_cfg:
             raise CheckpointError(out_dir / "last.pt", "was trained with another model config; use another --out")
+        changed = resume_mismatches(ck, meta)
+        if changed:
+            raise CheckpointError(out_dir / "last.pt", f"was started with other settings ({'; '.join(changed)}); "
+                                  "resume with the same settings or use another --out")
         model.load_state_dict(ck["model_state"])
         opt.load_state_dict(ck["optimizer"])
         sched.load_state_dict(ck["scheduler"])
