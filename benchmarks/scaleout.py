@@ -5,7 +5,7 @@ Writes ``benchmarks/results/scaleout.json``. The same jobs run under every backe
 (:func:`nue.evaluate.runner.run_eval`) on the first ``--eval-episodes`` episodes of validation houses with
 ``checkpoints/nue.pt`` (the memory online, coverage tracked), each cut at ``--eval-steps`` steps, and ``nue
 collect``'s (:func:`nue.train.collect.collect`) with the geodesic expert on ``--collect-houses`` training
-houses (one episode per difficulty bin). Each worker runs one torch thread and llvmpipe on one thread.
+houses (``--collect-per-bin`` episodes per difficulty bin). Each worker runs one torch thread and llvmpipe on one thread.
 
 Per run: wall-clock of the call (process start-up, loading and the jobs; a Ray cluster's start is timed
 apart, before the call), environment steps done, steps/s, and efficiency per worker =
@@ -58,7 +58,7 @@ def time_eval(tmp: Path, episodes_dir: Path, args, workers: int, ray_address: st
 
 def time_collect(tmp: Path, args, workers: int, ray_address: str | None) -> dict:
     out = tmp / f"collect_{workers}_{bool(ray_address)}"
-    cfg = CollectConfig(houses=tuple(range(args.collect_houses)), episodes_per_bin=1, heldout_per_bin=0)
+    cfg = CollectConfig(houses=tuple(range(args.collect_houses)), episodes_per_bin=args.collect_per_bin, heldout_per_bin=0)
     t = time.perf_counter()
     summary = collect(out, cfg, SCENES, workers=workers, ray_address=ray_address, progress=False)
     wall = time.perf_counter() - t
@@ -70,7 +70,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--eval-episodes", type=int, default=4, help="episodes per validation house (2 houses)")
     ap.add_argument("--eval-steps", type=int, default=100, help="step limit per evaluation episode")
-    ap.add_argument("--collect-houses", type=int, default=2, help="training houses collected (3 episodes each)")
+    ap.add_argument("--collect-houses", type=int, default=2, help="training houses collected")
+    ap.add_argument("--collect-per-bin", type=int, default=3, help="episodes per difficulty bin and house collected")
     ap.add_argument("--no-ray", action="store_true", help="skip the local Ray cluster")
     args = ap.parse_args()
     load_before = os.getloadavg()
@@ -116,7 +117,7 @@ def main() -> None:
     path = write_result("scaleout", {
         "eval_jobs": f"checkpoints/nue.pt, first {args.eval_episodes} episodes of val_00 and val_01, "
                      f"cut at {args.eval_steps} steps",
-        "collect_jobs": f"geodesic expert, {args.collect_houses} training house(s) x 3 bins x 1 episode",
+        "collect_jobs": f"geodesic expert, {args.collect_houses} training house(s) x 3 bins x {args.collect_per_bin} episode(s)",
         "ray_start_s": ray_start_s, "loadavg_before": load_before, "loadavg_after": os.getloadavg(), **results})
     print(f"wrote {path}")
 
