@@ -216,7 +216,7 @@ def test_auto_precision_is_recorded_resolved_in_the_checkpoint(demos, tmp_path):
 
 
 def test_resume_mismatches_names_changed_settings_and_data():
-    from nue.train.bc import resume_mismatches
+    from nue.train.checkpoint import resume_mismatches
 
     stored = {"train_config": {"lr": 1e-3, "steps": 100, "out": "a", "precision": "fp32", "precision_resolved": "fp32",
                                "eval_houses": (0, 1), "old_field": 1}, "manifest_hash": "aaaa"}

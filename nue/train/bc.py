@@ -29,7 +29,7 @@ from nue.policy import build_model
 from nue.policy.base import PolicyOutput, angle_l1_loss, wrap_angle_t
 from nue.policy.config import get_model_config
 from nue.sim.task import get_task
-from nue.train.checkpoint import PolicyHeader, load_checkpoint, policy_meta, save_checkpoint
+from nue.train.checkpoint import PolicyHeader, load_checkpoint, policy_meta, resume_mismatches, save_checkpoint
 from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler, data_roots, swap_maps
 from nue.train.select import SelectConfig, select_checkpoint
 
@@ -128,26 +128,6 @@ def resolve_precision(precision: str, device: torch.device) -> str:
         return "bf16" if torch.ops.mkldnn._is_mkldnn_bf16_supported() else "fp32"
     except (AttributeError, RuntimeError):  # pragma: no cover - builds without oneDNN
         return "fp32"
-
-
-RESUME_FREE = frozenset({"out", "data", "device", "verify_data", "select_workers", "select_scenes_root", "precision"})
-"""``TrainConfig`` fields a resumed run may change: where things are and how many workers select, not what is
-trained (``precision`` is compared as resolved; the data by its manifest hash)."""
-
-
-def resume_mismatches(stored: dict, now: dict) -> list[str]:
-    """What a resumed run would change: ``"name stored -> now"`` per differing training setting (fields in
-    both configs only, so older checkpoints compare what they recorded) and the data's manifest hash. Both
-    arguments are checkpoint payloads / metas (``train_config``, ``manifest_hash``)."""
-
-    def norm(v):
-        return [norm(x) for x in v] if isinstance(v, (list, tuple)) else v
-
-    a, b = dict(stored.get("train_config") or {}), dict(now.get("train_config") or {})
-    out = [f"{k} {a[k]!r} -> {b[k]!r}" for k in sorted((a.keys() & b.keys()) - RESUME_FREE) if norm(a[k]) != norm(b[k])]
-    if stored.get("manifest_hash") and stored["manifest_hash"] != now.get("manifest_hash"):
-        out.append(f"training data (manifest {stored['manifest_hash']} -> {now.get('manifest_hash')})")
-    return out
 
 
 def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainConfig, device: torch.device):

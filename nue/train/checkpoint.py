@@ -234,3 +234,23 @@ def policy_meta(task: TaskConfig, memory_cfg: MemoryConfig, model_cfg: ModelConf
     :class:`PolicyHeader`'s entries and the memory's fixed initial weights (``memory_init``)."""
     header = PolicyHeader.of(task, memory_cfg, model_cfg, scenes, manifest_hash, train_config, data)
     return {**header.to_dict(), "memory_init": OnlineNeRF(memory_cfg, task.camera).initial_state()}
+
+
+RESUME_FREE = frozenset({"out", "data", "device", "verify_data", "select_workers", "select_scenes_root", "precision"})
+"""``nue.train.bc.TrainConfig`` fields a resumed run may change: where things are and how many workers select, not what is
+trained (``precision`` is compared as resolved; the data by its manifest hash)."""
+
+
+def resume_mismatches(stored: dict, now: dict) -> list[str]:
+    """What a resumed run would change: ``"name stored -> now"`` per differing training setting (fields in
+    both configs only, so older checkpoints compare what they recorded) and the data's manifest hash. Both
+    arguments are checkpoint payloads / metas (``train_config``, ``manifest_hash``)."""
+
+    def norm(v):
+        return [norm(x) for x in v] if isinstance(v, (list, tuple)) else v
+
+    a, b = dict(stored.get("train_config") or {}), dict(now.get("train_config") or {})
+    out = [f"{k} {a[k]!r} -> {b[k]!r}" for k in sorted((a.keys() & b.keys()) - RESUME_FREE) if norm(a[k]) != norm(b[k])]
+    if stored.get("manifest_hash") and stored["manifest_hash"] != now.get("manifest_hash"):
+        out.append(f"training data (manifest {stored['manifest_hash']} -> {now.get('manifest_hash')})")
+    return out
