@@ -75,16 +75,18 @@ def collect_cmd(
     out: Path = typer.Option(Path("data/demos"), help="Collection folder (episode files + manifest)."),
     scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the generated houses live (made if missing)."),
     cfg: CollectConfig = COLLECT,
+    storage: StepStorage = STORAGE,
     workers: int = WORKERS,
     ray_address: Optional[str] = RAY_ADDRESS,
 ):
-    """Collect expert demonstrations with the online NeRF memory (resumes if rerun)."""
+    """Collect expert demonstrations with the online NeRF memory (resumes if rerun); stored compactly by
+    default, `--rgbd-bits 0 --i-cog-bits 0` for float16."""
     from nue.train.collect import collect
 
     A.positive("--workers", workers)
     check_output_dir(out, "the collection folder")
     check_output_dir(scenes_root, "the scenes folder")
-    summary = collect(out, cfg, scenes_root, workers=workers, ray_address=ray_address)
+    summary = collect(out, cfg, scenes_root, workers=workers, ray_address=ray_address, storage=storage)
     typer.echo(f"{summary['episodes']} episodes, {summary['steps']} steps, "
                f"{summary['bytes_per_step'] / 1024:.0f} KiB/step, expert SR {100 * summary['expert_success_rate']:.1f}% -> {out}")
 

@@ -135,6 +135,28 @@ def test_ray_collection_equals_single_process(houses, reference, tmp_path, local
         _same_episode(path, ref[key])
 
 
+def test_float16_storage_collects_the_same_episodes_and_refuses_a_mixed_resume(houses, reference, tmp_path):
+    out = tmp_path / "demos16"
+    args = ["collect", "--out", out, "--scenes-root", tmp_path / "scenes", "--scene", houses[0],
+            "--episodes-per-bin", 1, "--heldout-per-bin", 0, "--memory", "tiny", "--rgbd-bits", 0, "--i-cog-bits", 0]
+    first = _cli(*args)
+    assert first.returncode == 0, first.stderr
+    assert json.loads((out / "storage.json").read_text()) == {"rgbd_bits": 0, "i_cog_bits": 0, "i_u_bits": 0}
+    got, ref = _files(out), _files(reference)
+    assert sorted(got) == [k for k in sorted(ref) if k.startswith("train/room_a/")]
+    for key, path in got.items():
+        x, _ = read_episode_file(path, mmap=False, verify=True)
+        r, _ = read_episode_file(ref[key], mmap=False, verify=True)
+        assert x["rgbd"].dtype == np.float16 and x["i_cog"].dtype == np.float16  # no QuantizedArray
+        assert np.array_equal(x["action"], r["action"]) and np.array_equal(x["pose"], r["pose"])
+        # the compact reference is within one 8-bit code of the float16 frame (its codes span [lo, lo + 255 scale])
+        step = np.asarray(r["rgbd"].scale)[..., None, None]
+        assert (np.abs(np.asarray(r["rgbd"], np.float32) - x["rgbd"].astype(np.float32)) <= step + 1e-3).all()
+    second = _cli(*args[:-4])  # resumed with the default (compact) storage
+    assert second.returncode == 2 and "storage.json" in second.stderr and "i_cog_bits" in second.stderr
+    assert "Traceback" not in second.stderr
+
+
 def test_corrupt_and_truncated_files_are_reported_and_skipped(reference, tmp_path):
     copy = tmp_path / "demos"
     shutil.copytree(reference, copy)

@@ -14,6 +14,7 @@ a :class:`~nue.train.collect_job.CollectJob`.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -166,15 +167,37 @@ def is_complete(path: Path) -> bool:
 
 
 def collect(out, cfg: CollectConfig, scenes_root, workers: int = 1, ray_address: str | None = None,
-            progress: bool = True) -> dict:
-    """Run (or resume) a collection into ``out``; returns a summary (episodes, steps, bytes per step)."""
+            progress: bool = True, storage: StepStorage = StepStorage()) -> dict:
+    """Run (or resume) a collection into ``out``; returns a summary (episodes, steps, bytes per step).
+
+    ``storage`` says how the step arrays are encoded (compact by default; all bits 0 = float16). It is not
+    part of the manifest — the content is the same whatever the encoding, as after ``nue convert`` — but
+    ``out/storage.json`` records it and a resumed collection refuses another one (DataError)."""
     out, scenes_root = Path(out), Path(scenes_root)
     jobs, manifest = plan_collection(cfg, scenes_root)
     write_manifest(out, manifest)
+    _check_storage(out, storage)
+    jobs = [Job(j.key, dataclasses.replace(j.payload, storage=storage)) for j in jobs]
     run_jobs(jobs, collect_episode, on_result=lambda job, res: _write(out, job, res),
              is_done=lambda job: is_complete(episode_path(out, job.key)), workers=workers,
              ray_address=ray_address, desc="collect", progress=progress)
     return summarize_collection(out, jobs)
+
+
+def _check_storage(out: Path, storage: StepStorage) -> None:
+    """Record ``storage`` in ``out/storage.json``, or refuse one that differs from the recorded encoding."""
+    path = out / "storage.json"
+    want = dataclasses.asdict(storage)
+    if path.is_file():
+        try:
+            have = json.loads(path.read_text())
+        except ValueError as exc:
+            raise DataError(path, f"unreadable ({exc})") from None
+        if have != want:
+            raise DataError(path, f"the collection was started with storage {have}; this run asks for {want} "
+                                  "(use another --out, or `nue convert` afterwards)")
+        return
+    path.write_text(json.dumps(want) + "\n")
 
 
 def _write(out: Path, job: Job, result) -> None:
@@ -192,6 +215,8 @@ def summarize_collection(out: Path, jobs) -> dict:
         total += episode_path(out, job.key).stat().st_size
     summary = {"episodes": len(jobs), "steps": steps, "bytes": total, "bytes_per_step": total / max(steps, 1),
                "expert_success_rate": succ / max(len(jobs), 1), "manifest_hash": read_manifest(out).hash()}
+    if (out / "storage.json").is_file():
+        summary["storage"] = json.loads((out / "storage.json").read_text())
     (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     return summary
 
@@ -212,7 +237,7 @@ def collect_episode(job: Job):
     episode = p.episode
     model_cfg = get_model_config(p.model).for_task(env.task)
     agent = make_agent(p, env)
-    rec = DemoRecorder(model_cfg, agent)
+    rec = DemoRecorder(model_cfg, agent, storage=p.storage)
     record = run_episode(env, agent, episode=episode, memory=memory, seed=p.seed, on_step=rec, method=p.agent.kind)
     meta = {"key": job.key, "scene": env.scene.name, "scene_hash": env.scene.content_hash,
             "episode_id": episode.episode_id, "difficulty": episode.difficulty, "success": record.success,

@@ -13,6 +13,7 @@ from typing import Any, Mapping
 from nue.errors import DataError
 from nue.nerf.config import MemoryConfig
 from nue.sim.episodes import Episode
+from nue.train.compact import StepStorage
 
 AGENT_KINDS = ("expert", "dagger")
 
@@ -83,6 +84,8 @@ class CollectJob:
     """DART noise: probability that a random move is executed instead (the label stays the expert's)."""
     expert_steps: int = 0
     """DAgger: the expert's step count on this episode (0 = unknown: no cap on policy control)."""
+    storage: StepStorage = StepStorage()
+    """How the episode's step arrays are encoded in its file (compact by default)."""
 
     def agent_meta(self) -> dict:
         """Who drove, as stored in the episode file's header (``meta["agent"]``)."""
