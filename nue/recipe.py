@@ -205,8 +205,9 @@ def get_recipe(name: str) -> Recipe:
 class CostModel:
     """Measured costs the estimate scales (2-core x86 CPU with AVX512-BF16, checkpoints/README.md v2 / v3 runs)."""
 
-    collect_s_per_step: float = 0.096
-    """Collection, seconds per step per worker (v2: 46 min x 2 workers / 59,332 steps; v3: 52 x 2 / 63,999)."""
+    collect_s_per_step: float = 0.052
+    """Collection, seconds per step per worker (the v5 command at 20da927: 27.7 min x 2 workers / 63,999 steps;
+    before the agent-loop speedups of issue 11, v2 / v3 took 0.093 / 0.098)."""
     steps_per_episode: tuple[tuple[str, float], ...] = (("geodesic", 36.8), ("explore", 102.0))
     """Noise-free episode length per expert, steps (v1: 41,756 / 1,134; explore: v3's 145 / 1.42)."""
     noise_length_factor: float = 1.4
@@ -217,9 +218,10 @@ class CostModel:
     """Training throughput on one shared core with bf16, per model kind (v2; Nav-A3C: FR's encoder + an LSTM)."""
     select_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 15.0), ("fr", 2.2), ("nav_a3c", 2.2))
     """Closed-loop selection, seconds per episode (400-step limit; v2 / v3: NUE 11.1 / 19.4, FR 1.9 / 2.3)."""
-    eval_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 25.0), ("fr", 5.0), ("nav_a3c", 5.0),
-                                                         ("expert", 2.0), ("expert-explore", 5.0), ("swap", 25.0))
-    """Evaluation, seconds per episode per worker (v2 / v3 NUE 21 / 29, FR 2.4 / 6.9; swapped maps ~ NUE)."""
+    eval_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 20.0), ("fr", 5.0), ("nav_a3c", 5.0),
+                                                         ("expert", 2.0), ("expert-explore", 5.0), ("swap", 20.0))
+    """Evaluation, seconds per episode per worker (abl_at_cbam on val_plain at 20da927: 42.5 min x 2 workers /
+    252 = 20.2; v2 / v3 NUE 21 / 29, FR 2.4 / 6.9; swapped maps ~ NUE)."""
     train_overhead_s: float = 10.0
     """Per model: loading the demonstrations, building the model, checkpoints, seconds."""
     eval_overhead_s: float = 5.0
