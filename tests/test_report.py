@@ -258,6 +258,25 @@ def test_results_md_gives_each_further_episode_set_its_own_section(tmp_path, cap
     assert code == 2 and "NAME=FILE" in err and not (tmp_path / "rep2").exists()
 
 
+def test_two_further_sets_are_also_pooled_over_the_methods_that_ran_both():
+    """Set a: NUE 2 / 4, FR 4 / 4, Nav-A3C only here; set b (other houses): NUE 2 / 4, FR 0 / 4. Pooled: 8 pairs,
+    FR - NUE = (2 + -2) / 8 = 0 points, NUE 4 / 8 and FR 4 / 8; Nav-A3C is left out (it did not run set b), as is an
+    earlier recipe's row. One set alone gets no pooled section."""
+    a = hand_records() + [rec(i, d, True, method="fr") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
+    a += [rec(i, d, True, method="nav_a3c") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
+    b = [rec(i, d, ok, method="nue", scene="s1") for i, d, ok in ((0, "easy", True), (1, "easy", True),
+                                                                     (2, "medium", False), (3, "hard", False))]
+    b += [rec(i, d, False, method="fr", scene="s1") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
+    b += [rec(i, d, True, method="fr_v1", scene="s1") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
+    text = RM.render_results_md(hand_records(), {"command": "x"}, sets={"val252": a, "val_plain": b})
+    pooled = text.split("## Pooled: `val252` + `val_plain`")[1]
+    assert "| FR | 8 | +0.0 [" in pooled and "Nav-A3C" not in pooled and "fr_v1" not in pooled
+    assert "| NUE (full) | 8 | " in pooled and "| FR | 8 | " in pooled
+    table = pooled.split("Ordering by total SR, pooled")[0]
+    assert "| 50.0 [" in table.split("| NUE (full) | 8 |")[1].split("\n")[0]
+    assert "## Pooled" not in RM.render_results_md(hand_records(), {"command": "x"}, sets={"val252": a})
+
+
 def test_an_episode_ending_off_the_planning_grid_is_left_out_of_dts_only():
     """A failure whose final geodesic is inf (a pocket the planning grid does not connect to the goal) has no DTS:
     the DTS mean is over the other episodes (easy: 2.5 from the hand records' failure, not inf), SR and SPL

@@ -1,6 +1,7 @@
 """The text of RESULTS.md, a pure function of episode records and metadata: the main episode set's Table I
 next to the paper, its ordering, the earlier recipes' rows, paired differences, coverage and closed-loop
-diagnostics, then one section per further episode set (``results/records_<set>.jsonl``), then the discussion.
+diagnostics, then one section per further episode set (``results/records_<set>.jsonl``), the further sets
+pooled, then the discussion.
 The tables themselves are :mod:`nue.evaluate.report`'s."""
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from typing import Mapping, Sequence
 
 from nue.evaluate import coverage as cov
 from nue.evaluate.report import (
-    NOTES, ordering_markdown, build_table, closed_loop_markdown, coverage_curves, format_counts_markdown,
+    NOTES, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
     format_markdown, format_paired_markdown, method_label, paired_differences, paper_table, unreachable_markdown,
 )
 from nue.sim.record import EpisodeRecord
@@ -57,6 +58,38 @@ def set_section_markdown(name: str, records: Sequence[EpisodeRecord], descriptio
                      f"{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
     if records:
         parts.append(f"Closed-loop diagnostics on `{name}`:\n\n{closed_loop_markdown(records, task)}")
+    return "\n".join(parts)
+
+
+def pooled_section_markdown(sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
+    """RESULTS.md's section pooling two or more further sets: the methods (earlier recipes left out) that ran
+    every set, each set's episodes all counted once, so a paired difference rests on the sum of the sets'
+    episodes (pairs matched on scene and episode id; the sets' houses differ). Table I, the ordering, the
+    paired differences to NUE and coverage. Empty with fewer than two sets or no method common to all."""
+    if len(sets) < 2:
+        return ""
+    per_set = {name: [r for r in recs if not is_earlier_recipe(r.method)] for name, recs in sets.items()}
+    common = set.intersection(*({canonical_method(r.method) for r in recs} for recs in per_set.values()))
+    pooled = [r for recs in per_set.values() for r in recs if canonical_method(r.method) in common]
+    if not pooled:
+        return ""
+    names = " + ".join(f"`{n}`" for n in sets)
+    rows = build_table(pooled)
+    paper = paper_table()
+    both = "both" if len(sets) == 2 else f"all {len(sets)}"
+    parts = [f"## Pooled: {names}\n\nThe methods that ran {both} sets, their episodes pooled (each set's houses "
+             f"are its own, so no episode is counted twice); the paired differences rest on every episode both a method "
+             f"and NUE ran.\n\n{format_markdown(rows, paper)}"]
+    ordering = ordering_markdown(rows, paper)
+    if ordering:
+        parts.append(f"Ordering by total SR, pooled:\n\n{ordering}")
+    diffs = paired_differences(pooled)
+    if diffs:
+        parts.append(f"Paired differences to NUE, pooled (95% paired bootstrap):\n\n{format_paired_markdown(diffs)}")
+    curves = coverage_curves(pooled)
+    if curves:
+        parts.append("Exploration coverage, pooled (mean seen floor area, m²):\n\n"
+                     f"{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
     return "\n".join(parts)
 
 
@@ -111,6 +144,9 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
         for name, recs in sets.items():
             spec = EPISODE_SETS.get(name)
             parts.append(set_section_markdown(name, recs, spec.description if spec else "", task))
+        pooled = pooled_section_markdown(sets)
+        if pooled:
+            parts.append(pooled)
     if meta.get("discussion"):
         parts.append(f"## Discussion\n\n{meta['discussion']}\n")
     return "\n".join(parts)
