@@ -105,7 +105,7 @@ class Recipe:
     experts: tuple[str, ...] = ("expert", "expert-explore")
     """Reference rows run on every set: ``expert`` (geodesic), ``expert-explore``."""
     swap_maps: tuple[str, ...] = ("nue",)
-    """Models also run with another episode's maps (the swapped-maps control) on the first set."""
+    """Models also run with another episode's maps (the swapped-maps control) on every evaluation set."""
 
     def __post_init__(self) -> None:
         for m in self.models:
@@ -300,12 +300,12 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel()) ->
     out.append(StageEstimate("train", _makespan(jobs, w), f"{len(jobs)} models x {budget}{select}"
                              f"{f' x {1 + recipe.dagger_rounds} rounds' if recipe.dagger_rounds else ''}, {side}"))
     scale = min(1.0, recipe.eval_max_steps / 800) if recipe.eval_max_steps else 1.0
-    for i, (name, n) in enumerate(episode_counts(recipe).items()):
+    for name, n in episode_counts(recipe).items():
         per_ep = sum(_kind_cost(cost.eval_s_per_episode, m) for m in (*recipe.models, *recipe.experts))
         methods = len(recipe.models) + len(recipe.experts)
         out.append(StageEstimate(f"eval/{name}", (n * per_ep * scale + methods * cost.eval_overhead_s) / w,
                                  f"{n} episodes x {methods} methods / {w} worker(s)"))
-        if i == 0 and recipe.swap_maps:
+        if recipe.swap_maps:
             swap = len(recipe.swap_maps)
             out.append(StageEstimate(f"eval/{name}+swap", (n * swap * dict(cost.eval_s_per_episode)["swap"] * scale
                                                            + swap * cost.eval_overhead_s) / w,

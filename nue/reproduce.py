@@ -9,7 +9,7 @@ Stages, in order (each one calls the library function of its command, and each i
 ``train/<model>``   ``nue train --resume`` into ``OUT/runs/<model>`` (closed-loop selection included); the
                     models run side by side on ``--workers`` processes (one torch thread each) or Ray tasks
 ``eval/<set>``      ``nue eval`` of every model and expert on the set into ``OUT/records/<set>.jsonl``
-``eval/<set>+swap`` the swapped-maps control on the first set
+``eval/<set>+swap`` the swapped-maps control on each set
 ``report``          ``nue report`` per set (``OUT/report/<set>/``: tables and coverage.png; a set that extends
                     another also reports the smaller one from the same records) and ``OUT/RESULTS.md``
 ==================  ==========================================================================================
@@ -206,9 +206,9 @@ def _houses(recipe: Recipe) -> list[tuple[str, int]]:
 def plan_stages(recipe: Recipe) -> list[str]:
     """Stage names of a recipe, in order."""
     stages = ["scenes", "collect", *[f"train/{m}" for m in recipe.models]]
-    for i, name in enumerate(recipe.eval_sets):
+    for name in recipe.eval_sets:
         stages.append(f"eval/{name}")
-        if i == 0 and recipe.swap_maps:
+        if recipe.swap_maps:
             stages.append(f"eval/{name}+swap")
     return stages + ["report"]
 
@@ -328,15 +328,15 @@ def _subset(records, episodes_dir: Path) -> list:
 
 
 def report_tables(recipe: Recipe, folders: RunFolders) -> dict[str, list]:
-    """Records per reported table: every evaluation set (the first with its swapped-maps rows), and each smaller
+    """Records per reported table: every evaluation set with its swapped-maps rows, and each smaller
     set a set extends, taken from the larger set's records."""
     tables: dict[str, list] = {}
-    for i, name in enumerate(recipe.eval_sets):
+    for name in recipe.eval_sets:
         recs = load_records(folders.records(f"eval/{name}"))
         spec = get_episode_set(name)
         if spec.extends and (folders.episodes_root / spec.extends).is_dir():
             tables[spec.extends] = _subset(recs, folders.episodes_root / spec.extends)
-        if i == 0 and recipe.swap_maps:
+        if recipe.swap_maps:
             recs = recs + load_records(folders.records(f"eval/{name}+swap"))
         tables[name] = recs
     return tables

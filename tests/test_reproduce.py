@@ -63,11 +63,13 @@ def test_quick_run_prints_its_estimate_and_reaches_results(run):
     assert code == 0, text
     stages = plan_stages(RECIPES["quick"])
     assert all(RunFolders(out, Path(), Path()).marker(s).is_file() for s in stages)
-    records = {name: load_records(out / "records" / f"{name}.jsonl") for name in ("val252", "val_plain", "val252+swap")}
+    records = {name: load_records(out / "records" / f"{name}.jsonl") for name in ("val252", "val_plain", "val252+swap",
+                                                                                "val_plain+swap")}
     methods = {*TABLE_I_MODELS, "expert"}
     assert {r.method for r in records["val252"]} == methods == {r.method for r in records["val_plain"]}
     assert {r.scene for r in records["val252"]} == {"val_00"} and {r.scene for r in records["val_plain"]} == {"val_plain_00"}
-    assert {r.method for r in records["val252+swap"]} == {"nue+swap"}
+    assert {r.method for r in records["val252+swap"]} == {"nue+swap"} == {r.method for r in records["val_plain+swap"]}
+    assert {r.scene for r in records["val_plain+swap"]} == {"val_plain_00"}
     results = (out / "RESULTS.md").read_text()
     assert "## Table I: ours next to the paper" in results and "nue reproduce --recipe quick" in results
     assert "## Table I on `val`" in results and "## Table I on `val_plain`" in results
@@ -153,6 +155,7 @@ def test_the_estimate_covers_every_stage_and_scales_with_workers():
     v3 = get_recipe("v3")
     one, two = estimate(v3, 1), estimate(v3, 2)
     assert [s.stage for s in one] == ["scenes", "collect", "train", "eval/val252", "eval/val252+swap", "eval/val_plain",
+                                      "eval/val_plain+swap",
                                       "report"]
     by = {s.stage: s.seconds for s in two}
     assert 20 * 60 < by["collect"] < 35 * 60  # the v3/v5 collect command measured 27.7 min on 2 workers at 20da927
