@@ -34,6 +34,23 @@ def is_earlier_recipe(method: str) -> bool:
     return bool(_EARLIER_RECIPE.search(method))
 
 
+def _comparison_parts(rows, paper, records: Sequence[EpisodeRecord], where: str) -> list[str]:
+    """The ordering against the paper's (of ``rows``), the paired differences to NUE and the coverage (of
+    ``records``) of a further set's section, each titled with ``where`` (`` on `val252` `` or ``, pooled``)."""
+    parts = []
+    ordering = ordering_markdown(rows, paper)
+    if ordering:
+        parts.append(f"Ordering by total SR{where}:\n\n{ordering}")
+    diffs = paired_differences(records)
+    if diffs:
+        parts.append(f"Paired differences to NUE{where} (95% paired bootstrap):\n\n{format_paired_markdown(diffs)}")
+    curves = coverage_curves(records)
+    if curves:
+        parts.append(f"Exploration coverage{where} (mean seen floor area, m²):\n\n"
+                     f"{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
+    return parts
+
+
 def set_section_markdown(name: str, records: Sequence[EpisodeRecord], description: str = "",
                          task: str = "paper") -> str:
     """RESULTS.md's section of a further episode set ``name``: Table I next to the paper, the episodes per
@@ -46,16 +63,7 @@ def set_section_markdown(name: str, records: Sequence[EpisodeRecord], descriptio
     parts = [f"## Table I on `{name}`" + (f": {description}" if description else "") + "\n\n"
              f"{format_markdown(rows, paper)}\n{NOTES}\n\n"
              f"Episodes per cell (successes / episodes):\n\n{_counts_markdown(current, rows)}"]
-    ordering = ordering_markdown(rows, paper)
-    if ordering:
-        parts.append(f"Ordering by total SR on `{name}`:\n\n{ordering}")
-    diffs = paired_differences(records)
-    if diffs:
-        parts.append(f"Paired differences to NUE on `{name}` (95% paired bootstrap):\n\n{format_paired_markdown(diffs)}")
-    curves = coverage_curves(records)
-    if curves:
-        parts.append(f"Exploration coverage on `{name}` (mean seen floor area, m²):\n\n"
-                     f"{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
+    parts += _comparison_parts(rows, paper, records, f" on `{name}`")
     if records:
         parts.append(f"Closed-loop diagnostics on `{name}`:\n\n{closed_loop_markdown(records, task)}")
     return "\n".join(parts)
@@ -80,17 +88,7 @@ def pooled_section_markdown(sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
     parts = [f"## Pooled: {names}\n\nThe methods that ran {both} sets, their episodes pooled (each set's houses "
              f"are its own, so no episode is counted twice); the paired differences rest on every episode both a method "
              f"and NUE ran.\n\n{format_markdown(rows, paper)}"]
-    ordering = ordering_markdown(rows, paper)
-    if ordering:
-        parts.append(f"Ordering by total SR, pooled:\n\n{ordering}")
-    diffs = paired_differences(pooled)
-    if diffs:
-        parts.append(f"Paired differences to NUE, pooled (95% paired bootstrap):\n\n{format_paired_markdown(diffs)}")
-    curves = coverage_curves(pooled)
-    if curves:
-        parts.append("Exploration coverage, pooled (mean seen floor area, m²):\n\n"
-                     f"{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
-    return "\n".join(parts)
+    return "\n".join(parts + _comparison_parts(rows, paper, pooled, ", pooled"))
 
 
 def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, object], task: str = "paper",
