@@ -275,6 +275,10 @@ def test_two_further_sets_are_also_pooled_over_the_methods_that_ran_both():
     table = pooled.split("Ordering by total SR, pooled")[0]
     assert "| 50.0 [" in table.split("| NUE (full) | 8 |")[1].split("\n")[0]
     assert "## Pooled" not in RM.render_results_md(hand_records(), {"command": "x"}, sets={"val252": a})
+    # as nue reproduce calls it: the main records are the larger set, a further set is inside them and is left out
+    val = [r for r in a if r.episode_id in ("0", "1")]  # the first episodes of a, as episodes/val of val252
+    again = RM.render_results_md(a, {"command": "x"}, sets={"val": val, "val_plain": b})
+    assert "## Pooled: Table I's episodes + `val_plain`\n" in again and "| FR | 8 | +0.0 [" in again.split("## Pooled")[1]
 
 
 def test_an_episode_ending_off_the_planning_grid_is_left_out_of_dts_only():

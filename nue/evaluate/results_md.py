@@ -24,6 +24,9 @@ def _counts_markdown(records: Sequence[EpisodeRecord], rows) -> str:
     return format_counts_markdown(rows) + (f"\n{left_out}" if left_out else "")
 
 
+MAIN_SET = "Table I's episodes"
+"""The name the main records go by among the sets :func:`pooled_section_markdown` pools."""
+
 _EARLIER_RECIPE = re.compile(r"_v[0-9]+[a-z]?(\+swap)?$")
 
 
@@ -73,7 +76,14 @@ def pooled_section_markdown(sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
     """RESULTS.md's section pooling two or more further sets: the methods (earlier recipes left out) that ran
     every set, each set's episodes all counted once, so a paired difference rests on the sum of the sets'
     episodes (pairs matched on scene and episode id; the sets' houses differ). Table I, the ordering, the
-    paired differences to NUE and coverage. Empty with fewer than two sets or no method common to all."""
+    paired differences to NUE and coverage. A set whose episodes (scene, episode id) all lie in another one is left
+    out (``val`` inside ``val252``). Empty with fewer than two sets left or no method common to all."""
+    keys = {name: {(r.scene, r.episode_id) for r in recs} for name, recs in sets.items()}
+    order = list(sets)
+    # a set whose episodes all lie in another (val in val252) would count them twice: keep the larger one
+    # (of two equal ones the later: a further set over the main records, which come first)
+    sets = {n: sets[n] for i, n in enumerate(order)
+            if not any(keys[n] < keys[m] or (keys[n] == keys[m] and j > i) for j, m in enumerate(order) if m != n)}
     if len(sets) < 2:
         return ""
     per_set = {name: [r for r in recs if not is_earlier_recipe(r.method)] for name, recs in sets.items()}
@@ -81,7 +91,7 @@ def pooled_section_markdown(sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
     pooled = [r for recs in per_set.values() for r in recs if canonical_method(r.method) in common]
     if not pooled:
         return ""
-    names = " + ".join(f"`{n}`" for n in sets)
+    names = " + ".join(n if n == MAIN_SET else f"`{n}`" for n in sets)
     rows = build_table(pooled)
     paper = paper_table()
     both = "both" if len(sets) == 2 else f"all {len(sets)}"
@@ -142,7 +152,7 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
         for name, recs in sets.items():
             spec = EPISODE_SETS.get(name)
             parts.append(set_section_markdown(name, recs, spec.description if spec else "", task))
-        pooled = pooled_section_markdown(sets)
+        pooled = pooled_section_markdown({MAIN_SET: records, **sets})
         if pooled:
             parts.append(pooled)
     if meta.get("discussion"):
