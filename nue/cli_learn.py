@@ -46,6 +46,7 @@ TRAIN = ConfigOptions(
     Opt("time_budget_s", flag="--time-budget", minutes=True, check=A.non_negative,
         help="Stop (and checkpoint) after this many minutes of training (0 = no limit); with the deprecated "
              "--dagger-rounds, per round with its rollouts included."),
+    Opt("budget_clock", check=A.one_of("nue.train.bc:BUDGET_CLOCKS")),
     Opt("eval_every", check=A.positive), "seed", Opt("device", check=A.device),
     Opt("precision", check=A.one_of("nue.train.bc:PRECISIONS")), Opt("map_dropout", check=A.probability),
     Opt("select", check=A.one_of("nue.train.bc:SELECTIONS")), Opt("select_episodes", path=True),

@@ -153,7 +153,7 @@ def train_config(recipe: Recipe, model: str, folders: RunFolders, device: str = 
     return TrainConfig(
         data=str(folders.demos), out=str(folders.run(model)), model=model, steps=recipe.train_steps(model),
         batch_size=recipe.batch_for(model), seq_len=recipe.seq_len, lr=recipe.lr, warmup=recipe.warmup,
-        time_budget_s=60 * recipe.train_minutes, eval_every=recipe.step_plan(model).eval_every, seed=recipe.seed,
+        time_budget_s=60 * recipe.train_minutes, budget_clock=recipe.budget_clock, eval_every=recipe.step_plan(model).eval_every, seed=recipe.seed,
         device=device, precision=recipe.precision, map_dropout=recipe.map_dropout if cfg.uses_memory_maps else 0.0,
         select=recipe.select, select_episodes=str(folders.episodes_root / "select"),
         select_candidates=recipe.select_candidates, select_scenes_root=str(folders.scenes_root))

@@ -306,6 +306,25 @@ def test_a_spent_time_budget_stays_spent_on_resume(demos, tmp_path):
     assert all(torch.equal(before["model_state"][k], after["model_state"][k]) for k in before["model_state"])
 
 
+def test_a_cpu_time_budget_counts_the_process_cpu_clock_not_the_wall_clock(demos, tmp_path, monkeypatch):
+    """A fake CPU clock that advances 100 s per reading: the ``cpu`` budget of 450 s runs out at the third step
+    (readings: start 0, then two per step, 100/200, 300/400, 500/600 >= 450), the ``wall`` one never."""
+    import itertools
+
+    from nue.train import bc
+
+    readings = itertools.count(0.0, 100.0)
+    monkeypatch.setattr(bc.time, "process_time", lambda: next(readings))
+    cfg = bc.TrainConfig(data=str(demos), out="", model="fr", steps=6, batch_size=4, warmup=2, eval_every=25,
+                         time_budget_s=450.0)
+    wall = bc.train(cfg.replace(out=str(tmp_path / "wall")), progress=False)
+    assert wall.step == 6 and wall.elapsed_s < 450.0
+    cpu = bc.train(cfg.replace(out=str(tmp_path / "cpu"), budget_clock="cpu"), progress=False)
+    assert (cpu.step, cpu.elapsed_s) == (3, 600.0)
+    with pytest.raises(Exception, match="budget_clock"):
+        cfg.replace(budget_clock="gpu")
+
+
 def test_ddp_two_processes_gloo(demos, tmp_path):
     env = {**os.environ, "NUE_DDP_BACKEND": "gloo", "OMP_NUM_THREADS": "1"}
     res = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",

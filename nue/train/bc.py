@@ -74,6 +74,11 @@ class TrainConfig:
     """TensorBoard scalar interval, steps."""
     time_budget_s: float = 0.0
     """Stop (and checkpoint) after this many seconds of training; 0 = no limit."""
+    budget_clock: str = "wall"
+    """What the time budget (and the schedule that follows it) counts: ``wall`` (wall-clock) or ``cpu`` (this
+    process's CPU time, ``time.process_time``: a run that shares its cores with other work still gets the compute
+    its budget names, so a budget means the same on a busy machine; with one torch thread, seconds on one core).
+    ``cpu`` is for CPU training: on CUDA the GPU's time is not counted."""
     seed: int = 0
     """Seed of the model initialisation and of batch sampling."""
     device: str = "cpu"
@@ -106,6 +111,9 @@ class TrainConfig:
             raise ConfigError("train config", f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
         if not 0.0 <= self.map_dropout <= 1.0:
             raise ConfigError("train config", f"map_dropout must be in [0, 1], got {self.map_dropout}")
+        if self.budget_clock not in BUDGET_CLOCKS:
+            raise ConfigError("train config", f"budget_clock must be one of {', '.join(BUDGET_CLOCKS)}, "
+                                              f"got {self.budget_clock!r}")
         if self.select not in SELECTIONS:
             raise ConfigError("train config", f"select must be one of {', '.join(SELECTIONS)}, got {self.select!r}")
 
@@ -115,6 +123,7 @@ class TrainConfig:
 
 PRECISIONS = ("auto", "fp32", "bf16")
 SELECTIONS = ("accuracy", "closed_loop")
+BUDGET_CLOCKS = ("wall", "cpu")
 
 
 def resolve_precision(precision: str, device: torch.device) -> str:
@@ -314,7 +323,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     model.train()
     it = iter(sampler)
     bar = tqdm(total=cfg.steps, initial=step, desc=f"train {model_cfg.name}", disable=not progress or rank > 0)
-    t_start = time.perf_counter() - elapsed
+    clock_s = time.process_time if cfg.budget_clock == "cpu" else time.perf_counter
+    t_start = clock_s() - elapsed
     first_step = step
     samples_seen, t_window = 0, time.perf_counter()
     spent = cfg.time_budget_s > 0 and elapsed >= cfg.time_budget_s  # a resumed run whose budget is used up
@@ -334,12 +344,12 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
         loss.backward()
         gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
         opt.step()
-        clock["elapsed"] = time.perf_counter() - t_start
+        clock["elapsed"] = clock_s() - t_start
         sched.step()
         step += 1
         samples_seen += batch.action.numel() * world
         bar.update(1)
-        elapsed = time.perf_counter() - t_start
+        elapsed = clock_s() - t_start
         if writer is not None and step % cfg.log_every == 0:
             writer.add_scalar("losses/total", loss.item(), step)
             writer.add_scalar("losses/action_ce", ce.item(), step)
