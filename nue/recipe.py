@@ -4,9 +4,10 @@ presets ``RECIPES``, and the time estimate a recipe implies, stage by stage (``e
 A recipe fixes everything that changes the results: the demonstrations (expert, DART noise, episodes per
 bin), the models and their training (budget in wall-clock minutes on one core or in samples, batch,
 precision, map dropout, closed-loop selection, optional DAgger), and the evaluation sets. How the run is
-executed (worker processes, a Ray cluster, folders) is not part of it. ``v5`` is the recipe of the shipped
+executed (worker processes, a Ray cluster, folders) is not part of it. ``v6``, the default, is ``v5`` with a budget
+in samples seen (the same on any machine). ``v5`` is the recipe of the shipped
 checkpoints (``checkpoints/README.md``, "v5 recipe": the training config of ``checkpoints/*.pt``) applied to
-every model of Table I, and the default; ``v3`` is its predecessor (34 instead of 50 minutes per model);
+every model of Table I; ``v3`` is its predecessor (34 instead of 50 minutes per model);
 ``quick`` is tiny everything, for CI.
 """
 
@@ -186,7 +187,15 @@ V5 = V3.replace(name="v5", train_minutes=50.0, select_candidates=2,
                 steps=(("nue", StepPlan(30_000, 1_500)), ("fr", StepPlan(80_000, 3_000)),
                        ("nav_a3c", StepPlan(30_000, 1_000))))
 
+V6 = V5.replace(name="v6", train_minutes=0.0, train_samples=256_000)
+"""v5 with a budget in samples seen instead of minutes: the same for every model whatever the machine, its load or
+how many sessions a run spans (a time budget gives a slower machine's models fewer samples, and the models of one
+run trained on different days unequal ones). 256k samples = 4,000 steps of 64: NUE runs of 192k samples reached
+76.2 / 85.7% SR on the 84 val episodes against 77.4 / 75.0% for the 346k / 390k v5 ones (nue_v5a, nue.pt); held-out
+accuracy is flat past ~200k (benchmarks/README.md, storage experiment; checkpoints/README.md, v5)."""
+
 RECIPES: dict[str, Recipe] = {
+    "v6": V6,
     "v5": V5,
     "v3": V3,
     "quick": V3.replace(
@@ -195,7 +204,8 @@ RECIPES: dict[str, Recipe] = {
         seq_len=2, warmup=1, precision="fp32", select="accuracy", eval_houses=(0,), eval_max_episodes=1,
         eval_max_steps=5, experts=("expert",)),
 }
-"""Named recipes: ``v5`` (the shipped checkpoints' recipe, for all eight models; the default), ``v3``
+"""Named recipes: ``v6`` (the default: v5 with 256k samples per model instead of 50 minutes), ``v5`` (the shipped
+checkpoints' recipe, for all eight models), ``v3``
 (checkpoints/README.md "v3 recipe") and ``quick`` (CI)."""
 
 
@@ -221,8 +231,10 @@ class CostModel:
     """Episodes grow by 1 + this x noise (v2: 52.3 steps at noise 0.3 vs 36.8 without)."""
     house_s: float = 3.0
     """Generating one house (and loading it), seconds."""
-    samples_per_s: tuple[tuple[str, float], ...] = (("nue", 133.0), ("fr", 355.0), ("nav_a3c", 300.0))
-    """Training throughput on one shared core with bf16, per model kind (v2; Nav-A3C: FR's encoder + an LSTM)."""
+    samples_per_s: tuple[tuple[str, float], ...] = (("nue", 57.0), ("fr", 134.0), ("nav_a3c", 113.0))
+    """Training throughput per model kind, two trainings side by side on a 2-core CPU without native bf16 (fp32):
+    NUE measured in the v6 run of 2026-12-03 (57 samples/s each); FR and Nav-A3C scaled from it by their ratio to
+    NUE in benchmarks/results/train_no_native_bf16.json (2.35x) and in the v2 bf16 runs (Nav-A3C 0.85x FR)."""
     select_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 15.0), ("fr", 2.2), ("nav_a3c", 2.2))
     """Closed-loop selection, seconds per episode (400-step limit; v2 / v3: NUE 11.1 / 19.4, FR 1.9 / 2.3)."""
     eval_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 20.0), ("fr", 5.0), ("nav_a3c", 5.0),
@@ -302,7 +314,8 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel()) ->
         rollouts = recipe.dagger_rounds * n_eps * length * cost.collect_s_per_step * 1.2
         jobs.append(cost.train_overhead_s + rounds * t + rollouts + select_eps * recipe.select_candidates * _kind_cost(cost.select_s_per_episode, m))
     select = (f" + closed-loop selection ({recipe.select_candidates} x 21 episodes)" if select_eps else "")
-    budget = f"{recipe.train_minutes:g} min" if recipe.train_minutes > 0 else "its steps"
+    budget = (f"{recipe.train_minutes:g} min" if recipe.train_minutes > 0
+              else f"{recipe.train_samples:,} samples" if recipe.train_samples > 0 else "its steps")
     side = f"{min(w, len(jobs))} side by side on one core each" if w > 1 else "one at a time on one core"
     out.append(StageEstimate("train", _makespan(jobs, w), f"{len(jobs)} models x {budget}{select}"
                              f"{f' x {1 + recipe.dagger_rounds} rounds' if recipe.dagger_rounds else ''}, {side}"))

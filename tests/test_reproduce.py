@@ -113,7 +113,7 @@ def test_a_rerun_with_another_recipe_is_refused(run):
     out, _, _, _, args = run
     with pytest.raises(ConfigError, match="noise"):
         reproduce(get_recipe("quick").replace(noise=0.1), out, echo=lambda s: None)
-    code, _ = _nue(*[a for a in args if a != "--quick"])  # the default recipe, v5, into the quick run's folder
+    code, _ = _nue(*[a for a in args if a != "--quick"])  # the default recipe, v6, into the quick run's folder
     assert code == 2
     assert json.loads((out / "recipe.json").read_text())["recipe"]["name"] == "quick"
 
@@ -152,7 +152,10 @@ def test_v5_trains_as_the_shipped_checkpoints_were_trained(model):
     assert header.manifest_hash == "cc12e17f2c5e6ce1"  # the exploring expert's demonstrations (v3 collect command)
     v5, v3 = get_recipe("v5"), get_recipe("v3")
     assert (v5.expert, v5.noise, v5.episodes_per_bin, v5.heldout_per_bin) == (v3.expert, v3.noise, 6, 1)
-    assert RECIPES and next(iter(RECIPES)) == "v5"
+    v6 = get_recipe("v6")
+    assert next(iter(RECIPES)) == "v6" and v6 == v5.replace(name="v6", train_minutes=0.0, train_samples=256_000)
+    assert {m: v6.train_steps(m) for m in ("nue", "fr", "nav_a3c")} == {"nue": 4000, "fr": 4000, "nav_a3c": 4000}
+    assert train_config(v6, "nue", folders).time_budget_s == 0 and train_config(v6, "nav_a3c", folders).steps == 4000
 
 
 def test_the_estimate_covers_every_stage_and_scales_with_workers():
