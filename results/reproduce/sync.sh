@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Keep what a multi-session `nue reproduce` run has proved in git, and put it back on a fresh machine.
+#   bash results/reproduce/sync.sh save     runs/reproduce -> results/reproduce/run (recipe, stage markers, the
+#                                           best.pt and selection summary of every finished model, records)
+#   bash results/reproduce/sync.sh restore  results/reproduce/run -> runs/reproduce; without the demonstrations
+#                                           (8.7 GB, never committed) the collect marker is dropped, so a model
+#                                           still to train finds its data again (the collection is seeded: the
+#                                           same manifest hash, which `nue train --resume` checks)
+# Then rerun the same `nue reproduce` command: finished stages are kept, the rest continues.
+set -euo pipefail
+run=${RUN:-runs/reproduce}
+store=results/reproduce/run
+case "${1:-}" in
+  save)
+    mkdir -p "$store/stages" "$store/records"
+    cp "$run/recipe.json" "$store/"
+    cp "$run"/stages/*.json "$store/stages/"
+    for marker in "$run"/stages/train__*.json; do
+      [ -e "$marker" ] || continue
+      model=$(basename "$marker" .json); model=${model#train__}
+      mkdir -p "$store/runs/$model"
+      cp "$run/runs/$model/best.pt" "$store/runs/$model/"
+      for f in "$run/runs/$model"/selection*; do [ -e "$f" ] && cp "$f" "$store/runs/$model/"; done
+    done
+    for f in "$run"/records/*.jsonl; do [ -e "$f" ] && cp "$f" "$store/records/"; done
+    du -sh "$store" ;;
+  restore)
+    mkdir -p "$run"
+    cp -rn "$store"/. "$run"/
+    if [ ! -d "$run/demos" ]; then rm -f "$run/stages/collect.json"; fi
+    ls "$run/stages" ;;
+  *) echo "usage: $0 save|restore" >&2; exit 2 ;;
+esac
