@@ -22,6 +22,7 @@ from nue.policy import (
     PolicyInput,
     ResidualBlock,
     SpatialAttention,
+    SubsampledPointwiseConv,
     angle_l1_loss,
     build_model,
     detach_state,
@@ -75,6 +76,28 @@ def test_residual_block_shapes_and_bypass():
     same = ResidualBlock(8, 8, stride=1)
     assert isinstance(same.bypass, nn.Identity)
     assert same(torch.rand(2, 8, 5, 7)).shape == (2, 8, 5, 7)
+
+
+def test_subsampled_pointwise_conv_is_a_strided_1x1_conv():
+    """The bypass reads x[..., ::2, ::2] with a stride-1 1x1 conv: the function and the parameters of
+    nn.Conv2d(k=1, stride=2) (old checkpoints load), odd sizes included."""
+    torch.manual_seed(0)
+    fast = SubsampledPointwiseConv(5, 3, stride=2)
+    assert [n for n, _ in fast.named_parameters()] == ["weight"] and fast.weight.shape == (3, 5, 1, 1)
+    x = torch.randn(2, 5, 7, 9, requires_grad=True)
+    y = fast(x)
+    ref = F.conv2d(x, fast.weight, stride=2)
+    assert y.shape == ref.shape == (2, 3, 4, 5)
+    torch.testing.assert_close(y, ref)
+    y.square().sum().backward()
+    g_fast, gx_fast = fast.weight.grad.clone(), x.grad.clone()
+    fast.weight.grad, x.grad = None, None
+    ref.square().sum().backward()
+    torch.testing.assert_close(g_fast, fast.weight.grad)
+    torch.testing.assert_close(gx_fast, x.grad)
+    assert gx_fast[..., 1::2, :].abs().sum() == 0  # odd rows are never read
+    block = ResidualBlock(5, 3, stride=2)
+    assert "bypass.0.weight" in block.state_dict() and isinstance(block.bypass[0], SubsampledPointwiseConv)
 
 
 def test_cbam_on_hand_built_input():

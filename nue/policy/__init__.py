@@ -13,7 +13,7 @@ Every model shares one interface (:class:`PolicyModel`)::
 
 from nue.policy.base import PolicyModel, PolicyOutput, State, angle_l1_loss, detach_state, wrap_angle_t
 from nue.policy.baselines import FRPolicy, NavA3CPolicy
-from nue.policy.blocks import CBAM, ChannelAttention, ConvBranch, ResidualBlock, SpatialAttention
+from nue.policy.blocks import CBAM, ChannelAttention, ConvBranch, ResidualBlock, SpatialAttention, SubsampledPointwiseConv
 from nue.policy.config import ABLATION_PRESETS, MODEL_PRESETS, ModelConfig, get_model_config
 from nue.policy.inputs import PolicyInput, prepare_goal, prepare_input
 from nue.policy.nue_model import FusionHead, NUEPolicy
@@ -30,6 +30,6 @@ def build_model(config: ModelConfig | str) -> PolicyModel:
 __all__ = [
     "ABLATION_PRESETS", "CBAM", "ChannelAttention", "ConvBranch", "FRPolicy", "FusionHead", "MODEL_PRESETS",
     "ModelConfig", "NUEPolicy", "NavA3CPolicy", "PolicyInput", "PolicyModel", "PolicyOutput", "ResidualBlock",
-    "SpatialAttention", "State", "angle_l1_loss", "build_model", "detach_state", "get_model_config",
+    "SpatialAttention", "State", "SubsampledPointwiseConv", "angle_l1_loss", "build_model", "detach_state", "get_model_config",
     "prepare_goal", "prepare_input", "wrap_angle_t",
 ]
