@@ -23,6 +23,9 @@ case "${1:-}" in
       for f in "$run/runs/$model"/selection*; do [ -e "$f" ] && cp "$f" "$store/runs/$model/"; done
     done
     for f in "$run"/records/*.jsonl; do [ -e "$f" ] && cp "$f" "$store/records/"; done
+    # a file git would not commit is not saved (session 1's best.pt files were lost to a .gitignore pattern)
+    ignored=$(git ls-files --others --ignored --exclude-standard -- "$store")
+    if [ -n "$ignored" ]; then echo "error: $store: git ignores $ignored" >&2; exit 2; fi
     du -sh "$store" ;;
   restore)
     mkdir -p "$run"
