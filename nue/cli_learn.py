@@ -48,7 +48,7 @@ TRAIN = ConfigOptions(
              "--dagger-rounds, per round with its rollouts included."),
     Opt("budget_clock", check=A.one_of("nue.train.bc:BUDGET_CLOCKS")),
     Opt("eval_every", check=A.positive), "seed", Opt("device", check=A.device),
-    Opt("precision", check=A.one_of("nue.train.bc:PRECISIONS")), Opt("map_dropout", check=A.probability),
+    Opt("precision", check=A.one_of("nue.train.bc:PRECISIONS")), "compile", Opt("map_dropout", check=A.probability),
     Opt("select", check=A.one_of("nue.train.bc:SELECTIONS")), Opt("select_episodes", path=True),
     Opt("select_candidates", check=A.positive), Opt("select_workers", check=A.positive),
     Opt("init_from", path=True), Opt("warmup", check=A.non_negative))

@@ -23,6 +23,8 @@ def reproduce_cmd(
     device: str = typer.Option("cpu", help="cpu or cuda."),
     results_md: Optional[Path] = typer.Option(None, help="Also write RESULTS.md here (e.g. the repository's)."),
     estimate_only: bool = typer.Option(False, "--estimate", help="Print the time estimate and stop."),
+    compile: bool = typer.Option(False, help="Train with torch.compile (nue train --compile): ~1.5x the samples/s of NUE "
+                                             "on a CPU, the same arithmetic rounded differently; not part of the recipe."),
 ):
     """Collect, train every model of Table I, evaluate on the fixed episode sets, report: one resumable run."""
     from nue.recipe import estimate, format_estimate, get_recipe
@@ -32,14 +34,14 @@ def reproduce_cmd(
     A.device("--device", device)
     chosen = get_recipe("quick" if quick else recipe)
     if estimate_only:
-        typer.echo(f"recipe {chosen.name!r}, {workers} worker(s):\n{format_estimate(estimate(chosen, workers))}")
+        typer.echo(f"recipe {chosen.name!r}, {workers} worker(s):\n{format_estimate(estimate(chosen, workers, compiled=compile))}")
         return
     check_output_dir(out, "the run folder")
     check_output_dir(scenes_root, "the scenes folder")
     if results_md:
         check_output_file(results_md)
     res = reproduce(chosen, out, scenes_root, episodes_root, workers=workers, ray_address=ray_address, device=device,
-                    results_md=results_md, echo=typer.echo)
+                    results_md=results_md, echo=typer.echo, compile=compile)
     typer.echo(f"{len(res.ran)} stage(s) run, {len(res.kept)} kept from an earlier call; {res.results_md}")
 
 

@@ -235,6 +235,9 @@ class CostModel:
     """Training throughput per model kind, two trainings side by side on a 2-core CPU without native bf16 (fp32):
     NUE measured in the v6 run of 2026-12-03 (57 samples/s each); FR and Nav-A3C scaled from it by their ratio to
     NUE in benchmarks/results/train_no_native_bf16.json (2.35x) and in the v2 bf16 runs (Nav-A3C 0.85x FR)."""
+    compiled_speedup: tuple[tuple[str, float], ...] = (("nue", 1.5), ("fr", 1.0), ("nav_a3c", 1.0))
+    """Training throughput with ``nue train --compile`` relative to eager, per model kind (NUE: 1.5x, batch 64, one
+    thread, eager and compiled side by side at 1aa64eb; FR and Nav-A3C: not measured yet, taken as 1)."""
     select_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 15.0), ("fr", 2.2), ("nav_a3c", 2.2))
     """Closed-loop selection, seconds per episode (400-step limit; v2 / v3: NUE 11.1 / 19.4, FR 1.9 / 2.3)."""
     eval_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 20.0), ("fr", 5.0), ("nav_a3c", 5.0),
@@ -292,8 +295,9 @@ def collection_episodes(recipe: Recipe) -> int:
     return houses * 3 * (recipe.episodes_per_bin + recipe.heldout_per_bin)
 
 
-def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel()) -> list[StageEstimate]:
-    """Wall-clock per stage of ``recipe`` with ``workers`` parallel processes (a Ray cluster: its CPUs)."""
+def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), compiled: bool = False) -> list[StageEstimate]:
+    """Wall-clock per stage of ``recipe`` with ``workers`` parallel processes (a Ray cluster: its CPUs); ``compiled``:
+    training with ``torch.compile``."""
     w = max(1, workers)
     out = []
     houses = (len(recipe.train_houses) or len(SPLITS["train"])) + sum(
@@ -309,7 +313,8 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel()) ->
         if recipe.train_minutes > 0:
             t = 60 * recipe.train_minutes
         else:
-            t = recipe.train_steps(m) * recipe.samples_per_step(m) / _kind_cost(cost.samples_per_s, m)
+            rate = _kind_cost(cost.samples_per_s, m) * (_kind_cost(cost.compiled_speedup, m) if compiled else 1.0)
+            t = recipe.train_steps(m) * recipe.samples_per_step(m) / rate
         rounds = 1 + recipe.dagger_rounds
         rollouts = recipe.dagger_rounds * n_eps * length * cost.collect_s_per_step * 1.2
         jobs.append(cost.train_overhead_s + rounds * t + rollouts + select_eps * recipe.select_candidates * _kind_cost(cost.select_s_per_episode, m))
@@ -317,7 +322,7 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel()) ->
     budget = (f"{recipe.train_minutes:g} min" if recipe.train_minutes > 0
               else f"{recipe.train_samples:,} samples" if recipe.train_samples > 0 else "its steps")
     side = f"{min(w, len(jobs))} side by side on one core each" if w > 1 else "one at a time on one core"
-    out.append(StageEstimate("train", _makespan(jobs, w), f"{len(jobs)} models x {budget}{select}"
+    out.append(StageEstimate("train", _makespan(jobs, w), f"{len(jobs)} models x {budget}{' (compiled)' if compiled else ''}{select}"
                              f"{f' x {1 + recipe.dagger_rounds} rounds' if recipe.dagger_rounds else ''}, {side}"))
     scale = min(1.0, recipe.eval_max_steps / 800) if recipe.eval_max_steps else 1.0
     for name, n in episode_counts(recipe).items():

@@ -147,14 +147,15 @@ def collect_config(recipe: Recipe, device: str = "cpu") -> CollectConfig:
                          seed=recipe.seed, device=device, expert=recipe.expert, noise=recipe.noise)
 
 
-def train_config(recipe: Recipe, model: str, folders: RunFolders, device: str = "cpu") -> TrainConfig:
-    """``nue train`` of one model under a recipe (budget, batch, precision, map dropout, selection)."""
+def train_config(recipe: Recipe, model: str, folders: RunFolders, device: str = "cpu", compile: bool = False) -> TrainConfig:
+    """``nue train`` of one model under a recipe (budget, batch, precision, map dropout, selection); ``compile`` is
+    how it runs (``nue train --compile``), not part of the recipe."""
     cfg = get_model_config(model)
     return TrainConfig(
         data=str(folders.demos), out=str(folders.run(model)), model=model, steps=recipe.train_steps(model),
         batch_size=recipe.batch_for(model), seq_len=recipe.seq_len, lr=recipe.lr, warmup=recipe.warmup,
         time_budget_s=60 * recipe.train_minutes, budget_clock=recipe.budget_clock, eval_every=recipe.step_plan(model).eval_every, seed=recipe.seed,
-        device=device, precision=recipe.precision, map_dropout=recipe.map_dropout if cfg.uses_memory_maps else 0.0,
+        device=device, precision=recipe.precision, compile=compile, map_dropout=recipe.map_dropout if cfg.uses_memory_maps else 0.0,
         select=recipe.select, select_episodes=str(folders.episodes_root / "select"),
         select_candidates=recipe.select_candidates, select_scenes_root=str(folders.scenes_root))
 
@@ -215,11 +216,12 @@ def plan_stages(recipe: Recipe) -> list[str]:
 
 def reproduce(recipe: Recipe, out, scenes_root="data/scenes", episodes_root="episodes", workers: int = 1,
               ray_address: str | None = None, device: str = "cpu", results_md=None,
-              echo: Callable[[str], None] = print, progress: bool = True) -> ReproduceResult:
-    """Run (or resume) ``recipe`` into ``out``; see the module docstring."""
+              echo: Callable[[str], None] = print, progress: bool = True, compile: bool = False) -> ReproduceResult:
+    """Run (or resume) ``recipe`` into ``out``; see the module docstring. ``compile``: train with ``torch.compile``
+    (``TrainConfig.compile``: the same arithmetic, rounded differently; a run may switch it between calls)."""
     folders = RunFolders(Path(out), Path(scenes_root), Path(episodes_root))
     check_recipe(folders.out, recipe)
-    est = {s.stage: s for s in estimate(recipe, workers)}
+    est = {s.stage: s for s in estimate(recipe, workers, compiled=compile)}
     echo(f"nue reproduce: recipe {recipe.name!r} -> {folders.out}; estimated wall-clock with {workers} worker(s):\n"
          f"{format_estimate(list(est.values()))}")
     stages = plan_stages(recipe)
@@ -245,7 +247,7 @@ def reproduce(recipe: Recipe, out, scenes_root="data/scenes", episodes_root="epi
         if stage.startswith("train/"):
             if stage == pending_train[0]:
                 header(i, "train", f"{len(pending_train)} model(s): {', '.join(s[6:] for s in pending_train)}")
-                _run_training(recipe, folders, pending_train, workers, ray_address, device, progress, finish)
+                _run_training(recipe, folders, pending_train, workers, ray_address, device, progress, finish, compile)
             continue
         t0 = time.perf_counter()
         if stage == "scenes":
@@ -276,14 +278,14 @@ def reproduce(recipe: Recipe, out, scenes_root="data/scenes", episodes_root="epi
 
 
 def _run_training(recipe, folders: RunFolders, stages: list[str], workers: int, ray_address, device, progress,
-                  finish) -> None:
+                  finish, compile: bool = False) -> None:
     """The models of ``stages`` side by side on ``workers`` processes (or Ray tasks), one torch thread each."""
     dagger = None
     if recipe.dagger_rounds:
         dagger = DaggerConfig(rounds=recipe.dagger_rounds, beta0=recipe.dagger_beta, steps_per_round=recipe.dagger_steps,
                               episodes_per_bin=recipe.dagger_episodes_per_bin, round_budget_s=60 * recipe.train_minutes)
     single = workers <= 1 and not ray_address
-    jobs = [Job(stage, TrainJob(train_config(recipe, stage[6:], folders, device), collect_config(recipe, device), dagger,
+    jobs = [Job(stage, TrainJob(train_config(recipe, stage[6:], folders, device, compile), collect_config(recipe, device), dagger,
                                 str(folders.scenes_root), progress and single)) for stage in stages]
 
     def on_result(job: Job, result: dict) -> None:

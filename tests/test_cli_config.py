@@ -65,7 +65,8 @@ def test_train_help_shows_each_config_option_with_the_fields_default_and_docstri
             assert param.default is None and f"{param.help} [default" not in text
         else:
             assert param.default == (Path(default) if o.path else default), o.field
-            assert f"{param.help} [default: {param.default}]" in text, o.field
+            shown = f"{'' if default else 'no-'}{o.field.replace('_', '-')}" if isinstance(default, bool) else default
+            assert f"{param.help} [default: {shown}]" in text, o.field  # a flag: [default: no-compile]
     assert "--lr <float> Peak AdamW learning rate. [default: 0.001]" in text  # the docstring, by hand
     assert "--time-budget <float> Stop (and checkpoint) after this many minutes" in text
     assert "--dagger-steps <int> `nue dagger --round-steps`. [default: 1000]" in text  # the deprecated spelling

@@ -251,6 +251,41 @@ def test_resume_mismatches_names_changed_settings_and_data():
     assert resume_mismatches({}, changed) == []  # a checkpoint that recorded nothing
 
 
+@pytest.mark.slow
+def test_compiled_training_computes_what_eager_training_computes(demos, tmp_path):
+    """``compile=True`` (torch.compile, inductor) trains the same function: same batches, weights within float
+    rounding of eager after 4 steps; and a run may switch it on resume (how, not what, is trained)."""
+    from nue.policy import build_model
+    from nue.policy.config import get_model_config
+    from nue.train.bc import TrainConfig, train
+    from nue.train.checkpoint import load_checkpoint
+
+    cfg = TrainConfig(data=str(demos), out=str(tmp_path / "eager"), model="fr", steps=4, batch_size=8, warmup=1,
+                      eval_every=2, precision="fp32")
+    eager = load_checkpoint(train(cfg, progress=False).last)
+    res = train(cfg.replace(out=str(tmp_path / "compiled"), compile=True), progress=False)
+    compiled = load_checkpoint(res.last)
+    assert compiled["train_config"]["compile"] is True and res.step == 4
+    for k, v in eager["model_state"].items():
+        torch.testing.assert_close(compiled["model_state"][k], v, rtol=1e-3, atol=1e-4, msg=k)
+    torch.manual_seed(cfg.seed)
+    init = build_model(get_model_config("fr")).state_dict()
+    assert max((eager["model_state"][k].float() - init[k].float()).abs().max() for k in init) > 1e-3  # it trained
+    assert eager["rng_states"] == compiled["rng_states"] and eager["sampler_states"] == compiled["sampler_states"]
+    assert train(cfg.replace(out=str(tmp_path / "compiled")), resume=True, progress=False).steps_this_call == 0
+
+
+def test_compile_needs_a_cxx_compiler_on_cpu(monkeypatch):
+    from nue.errors import ConfigError
+    from nue.train import bc
+
+    monkeypatch.setattr(bc.shutil, "which", lambda name: None)
+    with pytest.raises(ConfigError, match="needs a C\\+\\+ compiler"):
+        bc.check_compile(torch.device("cpu"))
+    monkeypatch.setattr(bc.shutil, "which", lambda name: f"/usr/bin/{name}")
+    bc.check_compile(torch.device("cpu"))
+
+
 def test_resumed_training_refuses_other_settings(demos, tmp_path):
     from nue.errors import CheckpointError
     from nue.train.bc import TrainConfig, train

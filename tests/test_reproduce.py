@@ -169,3 +169,18 @@ def test_the_estimate_covers_every_stage_and_scales_with_workers():
     assert by["train"] >= 4 * 34 * 60  # 8 models x 34 min, two at a time
     assert sum(s.seconds for s in two) < sum(s.seconds for s in one)
     assert format_estimate(two).splitlines()[-1].split()[0] == "total"
+
+
+def test_a_compiled_run_estimates_shorter_training_by_the_measured_speedup():
+    from nue.recipe import CostModel
+
+    v6, cost = get_recipe("v6"), CostModel()
+    eager = {s.stage: s for s in estimate(v6, 1)}
+    compiled = {s.stage: s for s in estimate(v6, 1, compiled=True)}
+    assert "(compiled)" in compiled["train"].detail and "(compiled)" not in eager["train"].detail
+    assert compiled["collect"].seconds == eager["collect"].seconds  # only training runs compiled
+    # one worker: the models' times add up; NUE's six rows at 1.5x, FR and Nav-A3C as measured (1.0 until measured)
+    samples = 256_000
+    saved = sum(samples / dict(cost.samples_per_s)[k] * (1 - 1 / dict(cost.compiled_speedup)[k])
+                for k in ["nue"] * 6 + ["fr", "nav_a3c"])
+    assert abs((eager["train"].seconds - compiled["train"].seconds) - saved) < 1.0

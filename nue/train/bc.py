@@ -12,8 +12,10 @@ Multi-process data parallel: launch with ``torchrun``; ranks split each batch (g
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import math
 import os
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -88,6 +90,11 @@ class TrainConfig:
     with bf16), else ``fp32``; ``bf16``: forward and backward under bfloat16 autocast (weights, optimiser and
     loss stay float32), about 2x the samples/s on CPUs with AVX512-BF16 (``make bench``) and the same
     held-out accuracy step for step (fp32 vs bf16 curves in ``benchmarks/README.md``); ``fp32``: no autocast."""
+    compile: bool = False
+    """``torch.compile`` (inductor) the training forward and backward: the same fp32 arithmetic, fused, so rounding
+    differs from eager; about 1.5x the NUE samples/s on a 2-core CPU (``benchmarks/train.py``) for ~1 min of
+    compiling when the run starts. Needs a C++ compiler on CPU, Triton on CUDA. Held-out evaluation and closed-loop
+    selection run the eager model. A resumed run may switch it (it changes how, not what, is trained)."""
     map_dropout: float = 0.0
     """Probability per sample that its memory maps (I_u, I_cog) are replaced by those of another sample of
     the batch, so the policy cannot rely on the maps alone (e.g. for obstacle avoidance); 0 = off."""
@@ -137,6 +144,16 @@ def resolve_precision(precision: str, device: torch.device) -> str:
         return "bf16" if torch.ops.mkldnn._is_mkldnn_bf16_supported() else "fp32"
     except (AttributeError, RuntimeError):  # pragma: no cover - builds without oneDNN
         return "fp32"
+
+
+def check_compile(device: torch.device) -> None:
+    """Refuse ``compile`` where torch.compile's inductor cannot build kernels: no C++ compiler (CPU), no Triton
+    (CUDA)."""
+    if device.type == "cuda":
+        if importlib.util.find_spec("triton") is None:
+            raise ConfigError("--compile", "torch.compile on CUDA needs Triton (pip install triton)")
+    elif not any(shutil.which(c) for c in (os.environ.get("CXX", "g++"), "g++", "clang++")):
+        raise ConfigError("--compile", "torch.compile on CPU needs a C++ compiler (g++ or clang++; set CXX)")
 
 
 def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainConfig, device: torch.device):
@@ -264,6 +281,9 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
     net = SequenceForward(model)
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda" else None)
+    if cfg.compile:
+        check_compile(device)
+        net = torch.compile(net, dynamic=False)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     clock = {"elapsed": 0.0}
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_factor(s, cfg, clock["elapsed"]))

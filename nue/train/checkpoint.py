@@ -236,9 +236,10 @@ def policy_meta(task: TaskConfig, memory_cfg: MemoryConfig, model_cfg: ModelConf
     return {**header.to_dict(), "memory_init": OnlineNeRF(memory_cfg, task.camera).initial_state()}
 
 
-RESUME_FREE = frozenset({"out", "data", "device", "verify_data", "select_workers", "select_scenes_root", "precision"})
+RESUME_FREE = frozenset({"out", "data", "device", "verify_data", "select_workers", "select_scenes_root", "precision",
+                         "compile"})
 """``nue.train.bc.TrainConfig`` fields a resumed run may change: where things are and how many workers select, not what is
-trained (``precision`` is compared as resolved; the data by its manifest hash)."""
+trained (``precision`` is compared as resolved; the data by its manifest hash; ``compile`` changes only the rounding)."""
 
 
 def resume_mismatches(stored: dict, now: dict) -> list[str]:
