@@ -235,9 +235,10 @@ class CostModel:
     """Training throughput per model kind, two trainings side by side on a 2-core CPU without native bf16 (fp32):
     NUE measured in the v6 run of 2026-12-03 (57 samples/s each); FR and Nav-A3C scaled from it by their ratio to
     NUE in benchmarks/results/train_no_native_bf16.json (2.35x) and in the v2 bf16 runs (Nav-A3C 0.85x FR)."""
-    compiled_speedup: tuple[tuple[str, float], ...] = (("nue", 1.5), ("fr", 1.0), ("nav_a3c", 1.0))
-    """Training throughput with ``nue train --compile`` relative to eager, per model kind (NUE: 1.5x, batch 64, one
-    thread, eager and compiled side by side at 1aa64eb; FR and Nav-A3C: not measured yet, taken as 1)."""
+    compiled_speedup: tuple[tuple[str, float], ...] = (("nue", 1.5), ("fr", 1.65), ("nav_a3c", 1.44))
+    """Training throughput with ``nue train --compile`` relative to eager, per model kind: eager and compiled steps
+    interleaved in one process (batch 64 / 8 x 8 sequences, fp32, one thread, synthetic data, aed64cc, a busy
+    2-core Xeon without native bf16)."""
     select_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 15.0), ("fr", 2.2), ("nav_a3c", 2.2))
     """Closed-loop selection, seconds per episode (400-step limit; v2 / v3: NUE 11.1 / 19.4, FR 1.9 / 2.3)."""
     eval_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 20.0), ("fr", 5.0), ("nav_a3c", 5.0),

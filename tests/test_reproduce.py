@@ -179,7 +179,7 @@ def test_a_compiled_run_estimates_shorter_training_by_the_measured_speedup():
     compiled = {s.stage: s for s in estimate(v6, 1, compiled=True)}
     assert "(compiled)" in compiled["train"].detail and "(compiled)" not in eager["train"].detail
     assert compiled["collect"].seconds == eager["collect"].seconds  # only training runs compiled
-    # one worker: the models' times add up; NUE's six rows at 1.5x, FR and Nav-A3C as measured (1.0 until measured)
+    # one worker: the models' times add up, each kind faster by its measured factor
     samples = 256_000
     saved = sum(samples / dict(cost.samples_per_s)[k] * (1 - 1 / dict(cost.compiled_speedup)[k])
                 for k in ["nue"] * 6 + ["fr", "nav_a3c"])
