@@ -4,7 +4,8 @@ Writes ``benchmarks/results/train.json``. Uses a synthetic collection in the rea
 layout (random arrays, 20 episodes x 40 steps, page-cache hot), so it needs no collected data. Per
 model it times, side by side in one run: batch assembly alone (memory-mapped gather + float16 ->
 float32), forward + backward + AdamW alone on a fixed batch, and the whole training step, the
-last for each precision (fp32, bf16 autocast) on 1 and 2 torch threads, with bf16 / fp32 ratios.
+last for each precision (fp32, bf16 autocast) on 1 and 2 torch threads, with bf16 / fp32 ratios, and fp32 under
+``torch.compile`` (``nue train --compile``) with its compile time and its ratio to eager fp32.
 Target (issue 5): >= 400 samples/s.
 """
 
@@ -90,12 +91,13 @@ def main() -> None:
             fixed = gather()
 
             net = SequenceForward(model)
+            compiled = torch.compile(SequenceForward(model), dynamic=False)  # nue train --compile
             cpu = torch.device("cpu")
 
-            def compute(batch=None, precision="fp32"):
+            def compute(batch=None, precision="fp32", use=None):
                 b = batch if batch is not None else fixed
                 reset = torch.ones(b.action.shape, dtype=torch.bool)
-                loss = forward_loss(net, model, b, reset, w, TrainConfig(precision=precision), cpu)[0]
+                loss = forward_loss(use or net, model, b, reset, w, TrainConfig(precision=precision), cpu)[0]
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
@@ -108,6 +110,13 @@ def main() -> None:
                 for precision in ("fp32", "bf16"):
                     res[f"train_samples_per_s_{precision}_{threads}t"] = rate(lambda: compute(gather(), precision), ITERS)
                 res[f"bf16_over_fp32_{threads}t"] = res[f"train_samples_per_s_bf16_{threads}t"] / res[f"train_samples_per_s_fp32_{threads}t"]
+                if threads == 1:
+                    t0 = time.perf_counter()
+                    compute(gather(), "fp32", compiled)  # the first call compiles
+                    res["compile_s"] = time.perf_counter() - t0
+                res[f"train_samples_per_s_fp32_compiled_{threads}t"] = rate(lambda: compute(gather(), "fp32", compiled), ITERS)
+                res[f"compiled_over_fp32_{threads}t"] = (res[f"train_samples_per_s_fp32_compiled_{threads}t"]
+                                                         / res[f"train_samples_per_s_fp32_{threads}t"])
             default = resolve_precision(TrainConfig().precision, cpu)  # what `nue train` runs here by default
             res["default_precision"] = default
             res["train_samples_per_s"] = res[f"train_samples_per_s_{default}_2t"]  # the headline: default path, 2 cores
@@ -115,7 +124,9 @@ def main() -> None:
             res["best_samples_per_s"] = max(v for k, v in res.items() if k.startswith("train_samples_per_s_"))
             out[name] = res
             print(f"{name}: fp32 {res['train_samples_per_s_fp32_1t']:.0f} / {res['train_samples_per_s_fp32_2t']:.0f} "
-                  f"samples/s on 1 / 2 threads; bf16 {res['train_samples_per_s_bf16_1t']:.0f} / "
+                  f"samples/s on 1 / 2 threads; compiled fp32 {res['train_samples_per_s_fp32_compiled_1t']:.0f} / "
+                  f"{res['train_samples_per_s_fp32_compiled_2t']:.0f} ({res['compile_s']:.0f} s to compile); bf16 "
+                  f"{res['train_samples_per_s_bf16_1t']:.0f} / "
                   f"{res['train_samples_per_s_bf16_2t']:.0f} (gather alone {g:.0f}, fp32 fwd+bwd+AdamW alone {c:.0f})")
     write_result("train", {"batch": BATCH, "threads": [1, 2], "bf16_cpu": _bf16_flag(), "models": out})
 
