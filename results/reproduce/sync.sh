@@ -3,9 +3,10 @@
 #   bash results/reproduce/sync.sh save     runs/reproduce -> results/reproduce/run (recipe, stage markers, the
 #                                           best.pt and selection summary of every finished model, records)
 #   bash results/reproduce/sync.sh restore  results/reproduce/run -> runs/reproduce; without the demonstrations
-#                                           (8.7 GB, never committed) the collect marker is dropped, so a model
-#                                           still to train finds its data again (the collection is seeded: the
-#                                           same manifest hash, which `nue train --resume` checks)
+#                                           (8.7 GB, never committed) and with a model still to train, the collect
+#                                           marker is dropped, so that model finds its data again (the collection is
+#                                           seeded: the same manifest hash, which `nue train --resume` checks); once
+#                                           every model is trained the marker stays and evaluation goes on
 # Then rerun the same `nue reproduce` command: finished stages are kept, the rest continues.
 set -euo pipefail
 run=${RUN:-runs/reproduce}
@@ -30,7 +31,10 @@ case "${1:-}" in
   restore)
     mkdir -p "$run"
     cp -rn "$store"/. "$run"/
-    if [ ! -d "$run/demos" ]; then rm -f "$run/stages/collect.json"; fi
+    # the demonstrations are needed again only while a model is still to train
+    models=$(python3 -c "import json, sys; print(len(json.load(open(sys.argv[1]))['recipe']['models']))" "$run/recipe.json")
+    trained=$(find "$run/stages" -name 'train__*.json' | wc -l)
+    if [ ! -d "$run/demos" ] && [ "$trained" -lt "$models" ]; then rm -f "$run/stages/collect.json"; fi
     ls "$run/stages" ;;
   *) echo "usage: $0 save|restore" >&2; exit 2 ;;
 esac
