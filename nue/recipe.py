@@ -279,28 +279,6 @@ def _makespan(durations: list[float], slots: int) -> float:
     return max(free) if durations else 0.0
 
 
-def train_seconds(recipe: Recipe, model: str, cost: CostModel = CostModel(), compiled: bool = False) -> float:
-    """Estimated wall-clock of one model's training job on one core: its budget (or its samples at the model kind's
-    measured rate), DAgger rounds and rollouts, closed-loop selection and overhead."""
-    if recipe.train_minutes > 0:
-        t = 60 * recipe.train_minutes
-    else:
-        rate = _kind_cost(cost.samples_per_s, model) * (_kind_cost(cost.compiled_speedup, model) if compiled else 1.0)
-        t = recipe.train_steps(model) * recipe.samples_per_step(model) / rate
-    length = dict(cost.steps_per_episode)[recipe.expert] * (1 + cost.noise_length_factor * recipe.noise)
-    rollouts = recipe.dagger_rounds * collection_episodes(recipe) * length * cost.collect_s_per_step * 1.2
-    select_eps = 21 if recipe.select == "closed_loop" else 0
-    return (cost.train_overhead_s + (1 + recipe.dagger_rounds) * t + rollouts
-            + select_eps * recipe.select_candidates * _kind_cost(cost.select_s_per_episode, model))
-
-
-def training_order(recipe: Recipe, models, cost: CostModel = CostModel(), compiled: bool = False) -> list[str]:
-    """The order in which ``nue reproduce`` starts the trainings of ``models``: shortest estimated job first (ties
-    in the recipe's order). A run spread over sessions that may end at any time then has the most models finished
-    at any moment; with two slots the makespan of Table I's models is the same as in the recipe's order."""
-    return sorted(models, key=lambda m: train_seconds(recipe, m, cost, compiled))
-
-
 def episode_counts(recipe: Recipe) -> dict[str, int]:
     """Evaluation episodes per set of a recipe (its houses and first-N limits applied)."""
     out = {}
@@ -330,8 +308,17 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
     length = dict(cost.steps_per_episode)[recipe.expert] * (1 + cost.noise_length_factor * recipe.noise)
     out.append(StageEstimate("collect", n_eps * length * cost.collect_s_per_step / w,
                              f"{n_eps} episodes x ~{length:.0f} steps x {cost.collect_s_per_step} s / {w} worker(s)"))
-    jobs = [train_seconds(recipe, m, cost, compiled) for m in training_order(recipe, recipe.models, cost, compiled)]
+    jobs = []
     select_eps = 21 if recipe.select == "closed_loop" else 0
+    for m in recipe.models:
+        if recipe.train_minutes > 0:
+            t = 60 * recipe.train_minutes
+        else:
+            rate = _kind_cost(cost.samples_per_s, m) * (_kind_cost(cost.compiled_speedup, m) if compiled else 1.0)
+            t = recipe.train_steps(m) * recipe.samples_per_step(m) / rate
+        rounds = 1 + recipe.dagger_rounds
+        rollouts = recipe.dagger_rounds * n_eps * length * cost.collect_s_per_step * 1.2
+        jobs.append(cost.train_overhead_s + rounds * t + rollouts + select_eps * recipe.select_candidates * _kind_cost(cost.select_s_per_episode, m))
     select = (f" + closed-loop selection ({recipe.select_candidates} x 21 episodes)" if select_eps else "")
     budget = (f"{recipe.train_minutes:g} min" if recipe.train_minutes > 0
               else f"{recipe.train_samples:,} samples" if recipe.train_samples > 0 else "its steps")

@@ -37,7 +37,7 @@ from nue.evaluate.results_md import render_results_md
 from nue.evaluate.runner import EvalConfig, episode_files, run_eval
 from nue.jobs import Job, fail_point, run_jobs
 from nue.policy.config import get_model_config
-from nue.recipe import Recipe, estimate, format_duration, format_estimate, training_order
+from nue.recipe import Recipe, estimate, format_duration, format_estimate
 from nue.scene.generator import SPLITS, ensure_house
 from nue.sim.episode_sets import get_episode_set
 from nue.train.bc import TrainConfig, train
@@ -238,16 +238,14 @@ def reproduce(recipe: Recipe, out, scenes_root="data/scenes", episodes_root="epi
         guess = est.get(stage.split("/")[0] if stage.startswith("train/") else stage)
         echo(f"[{i + 1}/{len(stages)}] {stage}: {what}" + (f" (estimate {format_duration(guess.seconds)})" if guess else ""))
 
-    # trainings start shortest first (nue.recipe.training_order), so a run cut short keeps the most models
-    pending_train = [f"train/{m}" for m in training_order(recipe, [s[6:] for s in stages if s.startswith("train/")
-                                                                   and s not in kept], compiled=compile)]
+    pending_train = [s for s in stages if s.startswith("train/") and s not in kept]
     for i, stage in enumerate(stages):
         if stage in kept:
             echo(f"[{i + 1}/{len(stages)}] {stage}: finished in an earlier call "
                  f"({format_duration(stage_done(folders, stage)['seconds'])}), kept")
             continue
         if stage.startswith("train/"):
-            if stage == min(pending_train, key=stages.index):
+            if stage == pending_train[0]:
                 header(i, "train", f"{len(pending_train)} model(s): {', '.join(s[6:] for s in pending_train)}")
                 _run_training(recipe, folders, pending_train, workers, ray_address, device, progress, finish, compile)
             continue
