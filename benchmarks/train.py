@@ -33,6 +33,7 @@ from nue.sim.task import get_task  # noqa: E402
 from nue.train.bc import SequenceForward, TrainConfig, class_weights, forward_loss, resolve_precision  # noqa: E402
 from nue.train.manifest import data_layout  # noqa: E402
 from nue.train.dataset import BufferSampler, DemoSet  # noqa: E402
+from nue.train.hardware import cpu_has_native_bf16  # noqa: E402
 from nue.train.episode_file import write_episode_file  # noqa: E402
 
 BATCH, ITERS = 64, 12
@@ -128,16 +129,7 @@ def main() -> None:
                   f"{res['train_samples_per_s_fp32_compiled_2t']:.0f} ({res['compile_s']:.0f} s to compile); bf16 "
                   f"{res['train_samples_per_s_bf16_1t']:.0f} / "
                   f"{res['train_samples_per_s_bf16_2t']:.0f} (gather alone {g:.0f}, fp32 fwd+bwd+AdamW alone {c:.0f})")
-    write_result("train", {"batch": BATCH, "threads": [1, 2], "bf16_cpu": _bf16_flag(), "models": out})
-
-
-def _bf16_flag() -> bool:
-    """Whether this CPU has native bfloat16 (AVX512-BF16 or AMX); without it bf16 is emulated and slower."""
-    try:
-        flags = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return False
-    return "avx512_bf16" in flags or "amx_bf16" in flags
+    write_result("train", {"batch": BATCH, "threads": [1, 2], "bf16_cpu": cpu_has_native_bf16(), "models": out})
 
 
 if __name__ == "__main__":

@@ -215,15 +215,38 @@ def test_training_loss_falls(demos, tmp_path, precision):
 
 
 def test_precision_defaults_to_auto_and_resolves_by_hardware(monkeypatch):
-    """The default is ``auto``: bf16 autocast exactly where the CPU runs bfloat16 natively, else fp32."""
-    from nue.train import bc
+    """The default is ``auto``: bf16 autocast exactly where the CPU runs bfloat16 natively (oneDNN supports it and
+    the CPU has the instructions), else fp32."""
+    from nue.train import bc, hardware
 
     assert bc.TrainConfig().precision == "auto"
     cpu = torch.device("cpu")
-    for native, want in ((True, "bf16"), (False, "fp32")):
-        monkeypatch.setattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", lambda native=native: native)
+    for onednn, native, want in ((True, True, "bf16"), (True, False, "fp32"), (False, True, "fp32")):
+        monkeypatch.setattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", lambda onednn=onednn: onednn)
+        monkeypatch.setattr(hardware, "cpu_has_native_bf16", lambda native=native: native)
         assert bc.resolve_precision("auto", cpu) == want
         assert bc.resolve_precision("fp32", cpu) == "fp32" and bc.resolve_precision("bf16", cpu) == "bf16"
+
+
+def test_native_bf16_is_read_from_the_cpu_flags_not_from_onednn():
+    """oneDNN reports bf16 on any AVX512 CPU (emulated there, several times slower than fp32, and a compiled NUE step
+    in emulated bf16 produced NaN); only AVX512-BF16 or AMX-BF16 count."""
+    from nue.train.hardware import cpu_has_native_bf16
+
+    avx512 = "flags\t\t: fpu sse2 avx2 avx512f avx512bw avx512vl avx512_vnni\n"
+    assert not cpu_has_native_bf16(avx512)
+    assert cpu_has_native_bf16(avx512.replace("avx512_vnni", "avx512_vnni avx512_bf16"))
+    assert cpu_has_native_bf16("flags : avx512f amx_tile amx_bf16 amx_int8")
+    assert not cpu_has_native_bf16("flags : avx512f avx512bf16x")  # a whole flag, not a substring
+
+
+def test_a_non_finite_loss_stops_training_with_one_line(demos, tmp_path):
+    from nue.errors import DataError
+    from nue.train.bc import TrainConfig, train
+
+    with pytest.raises(DataError, match=r"the training loss is (nan|inf) at step \d+ \(precision fp32, compile False\)"):
+        train(TrainConfig(data=str(demos), out=str(tmp_path / "run"), model="fr", steps=20, batch_size=4, warmup=1,
+                          eval_every=10, lr=1e30, precision="fp32"), progress=False)
 
 
 def test_auto_precision_is_recorded_resolved_in_the_checkpoint(demos, tmp_path):
@@ -277,13 +300,13 @@ def test_compiled_training_computes_what_eager_training_computes(demos, tmp_path
 
 def test_compile_needs_a_cxx_compiler_on_cpu(monkeypatch):
     from nue.errors import ConfigError
-    from nue.train import bc
+    from nue.train import hardware
 
-    monkeypatch.setattr(bc.shutil, "which", lambda name: None)
+    monkeypatch.setattr(hardware.shutil, "which", lambda name: None)
     with pytest.raises(ConfigError, match="needs a C\\+\\+ compiler"):
-        bc.check_compile(torch.device("cpu"))
-    monkeypatch.setattr(bc.shutil, "which", lambda name: f"/usr/bin/{name}")
-    bc.check_compile(torch.device("cpu"))
+        hardware.check_compile(torch.device("cpu"))
+    monkeypatch.setattr(hardware.shutil, "which", lambda name: f"/usr/bin/{name}")
+    hardware.check_compile(torch.device("cpu"))
 
 
 def test_resumed_training_refuses_other_settings(demos, tmp_path):

@@ -12,10 +12,8 @@ Multi-process data parallel: launch with ``torchrun``; ranks split each batch (g
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import math
 import os
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +31,7 @@ from nue.policy.config import get_model_config
 from nue.sim.task import get_task
 from nue.train.checkpoint import PolicyHeader, load_checkpoint, policy_meta, resume_mismatches, save_checkpoint
 from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler, data_roots, swap_maps
+from nue.train.hardware import check_compile, resolve_precision
 from nue.train.select import SelectConfig, select_checkpoint
 
 
@@ -131,29 +130,6 @@ class TrainConfig:
 PRECISIONS = ("auto", "fp32", "bf16")
 SELECTIONS = ("accuracy", "closed_loop")
 BUDGET_CLOCKS = ("wall", "cpu")
-
-
-def resolve_precision(precision: str, device: torch.device) -> str:
-    """``auto`` -> ``bf16`` where ``device`` runs bfloat16 natively (CPU: AVX512-BF16 or AMX; CUDA: bf16
-    support), else ``fp32``; other values pass through."""
-    if precision != "auto":
-        return precision
-    if device.type == "cuda":
-        return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
-    try:
-        return "bf16" if torch.ops.mkldnn._is_mkldnn_bf16_supported() else "fp32"
-    except (AttributeError, RuntimeError):  # pragma: no cover - builds without oneDNN
-        return "fp32"
-
-
-def check_compile(device: torch.device) -> None:
-    """Refuse ``compile`` where torch.compile's inductor cannot build kernels: no C++ compiler (CPU), no Triton
-    (CUDA)."""
-    if device.type == "cuda":
-        if importlib.util.find_spec("triton") is None:
-            raise ConfigError("--compile", "torch.compile on CUDA needs Triton (pip install triton)")
-    elif not any(shutil.which(c) for c in (os.environ.get("CXX", "g++"), "g++", "clang++")):
-        raise ConfigError("--compile", "torch.compile on CPU needs a C++ compiler (g++ or clang++; set CXX)")
 
 
 def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainConfig, device: torch.device):
@@ -360,6 +336,10 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> Trai
             reset_t = torch.ones(batch.action.shape, dtype=torch.bool, device=device)
             batch = swap_maps(batch, rng, cfg.map_dropout)
         loss, ce, aux = forward_loss(net, model, batch, reset_t, weights, cfg, device)
+        if not torch.isfinite(loss):
+            raise DataError(out_dir, f"the training loss is {loss.item()} at step {step + 1} (precision "
+                                     f"{resolve_precision(cfg.precision, device)}, compile {cfg.compile}); stopped, "
+                                     f"last.pt holds the last checkpoint")
         opt.zero_grad(set_to_none=True)
         loss.backward()
         gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
