@@ -98,7 +98,7 @@ def main() -> None:
             def compute(batch=None, precision="fp32", use=None):
                 b = batch if batch is not None else fixed
                 reset = torch.ones(b.action.shape, dtype=torch.bool)
-                loss = forward_loss(use or net, model, b, reset, w, TrainConfig(precision=precision), cpu)[0]
+                loss = forward_loss(net if use is None else use, model, b, reset, w, TrainConfig(precision=precision), cpu)[0]
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
