@@ -90,11 +90,10 @@ class TrainConfig:
     loss stay float32), about 2x the samples/s on CPUs with AVX512-BF16 (``make bench``) and the same
     held-out accuracy step for step (fp32 vs bf16 curves in ``benchmarks/README.md``); ``fp32``: no autocast."""
     compile: bool = False
-    """``torch.compile`` (inductor) the training forward and backward: the same fp32 arithmetic, fused, so rounding
-    differs from eager; about 1.5x the NUE samples/s on a 2-core CPU (``benchmarks/train.py``) for ~1 min of
-    compiling when the run starts. Needs a C++ compiler on CPU, Triton on CUDA. Held-out evaluation and closed-loop
-    selection run the eager model. A resumed run may switch it (it changes how, not what, is trained). Tested in
-    fp32; NUE compiled under emulated bf16 (a CPU without AVX512-BF16) went NaN at the first steps."""
+    """``torch.compile`` (inductor) the training forward and backward: the same arithmetic, fused and rounded
+    differently; ~1.5x the samples/s on CPU (``benchmarks/train.py``) for up to ~1 min of compiling; needs a C++
+    compiler (CPU) or Triton (CUDA). Evaluation and selection run eager; a resume may switch it. Tested in fp32 (NUE
+    compiled under emulated bf16 went NaN at once)."""
     map_dropout: float = 0.0
     """Probability per sample that its memory maps (I_u, I_cog) are replaced by those of another sample of
     the batch, so the policy cannot rely on the maps alone (e.g. for obstacle avoidance); 0 = off."""
