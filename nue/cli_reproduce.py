@@ -22,19 +22,22 @@ def reproduce_cmd(
     ray_address: Optional[str] = typer.Option(None, help="Run episodes and trainings as tasks on this Ray cluster."),
     device: str = typer.Option("cpu", help="cpu or cuda."),
     results_md: Optional[Path] = typer.Option(None, help="Also write RESULTS.md here (e.g. the repository's)."),
-    estimate_only: bool = typer.Option(False, "--estimate", help="Print the time estimate and stop."),
+    estimate_only: bool = typer.Option(False, "--estimate", help="Print the time estimate and stop (what is left, if OUT holds a run)."),
     compile: bool = typer.Option(False, help="Train with torch.compile (nue train --compile): ~1.5x the samples/s of NUE "
                                              "on a CPU, the same arithmetic rounded differently; not part of the recipe."),
 ):
     """Collect, train every model of Table I, evaluate on the fixed episode sets, report: one resumable run."""
-    from nue.recipe import estimate, format_estimate, get_recipe
-    from nue.reproduce import reproduce
+    from nue.recipe import format_estimate, get_recipe
+    from nue.reproduce import RunFolders, check_recipe, remaining_estimate, reproduce
 
     A.positive("--workers", workers)
     A.device("--device", device)
     chosen = get_recipe("quick" if quick else recipe)
     if estimate_only:
-        typer.echo(f"recipe {chosen.name!r}, {workers} worker(s):\n{format_estimate(estimate(chosen, workers, compiled=compile))}")
+        if (out / "recipe.json").is_file():
+            check_recipe(out, chosen)  # a run of another recipe: refused, as a rerun would be
+        left = remaining_estimate(chosen, RunFolders(out, scenes_root, episodes_root), workers, compile)
+        typer.echo(f"recipe {chosen.name!r}, {workers} worker(s):\n{format_estimate(left)}")
         return
     check_output_dir(out, "the run folder")
     check_output_dir(scenes_root, "the scenes folder")

@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Sequence
 
 from nue.errors import ConfigError
 from nue.policy.config import ABLATION_PRESETS, get_model_config
@@ -263,6 +264,8 @@ class StageEstimate:
     """Estimated wall-clock, seconds."""
     detail: str
     """How it was computed."""
+    done: bool = False
+    """Finished by an earlier call of a resumed run (``seconds`` is then 0: nothing of it is left)."""
 
 
 def _kind_cost(table: tuple[tuple[str, float], ...], model: str) -> float:
@@ -296,9 +299,10 @@ def collection_episodes(recipe: Recipe) -> int:
     return houses * 3 * (recipe.episodes_per_bin + recipe.heldout_per_bin)
 
 
-def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), compiled: bool = False) -> list[StageEstimate]:
+def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), compiled: bool = False,
+             models: Sequence[str] | None = None) -> list[StageEstimate]:
     """Wall-clock per stage of ``recipe`` with ``workers`` parallel processes (a Ray cluster: its CPUs); ``compiled``:
-    training with ``torch.compile``."""
+    training with ``torch.compile``; ``models``: the models the training stage still has to train (default: all)."""
     w = max(1, workers)
     out = []
     houses = (len(recipe.train_houses) or len(SPLITS["train"])) + sum(
@@ -310,7 +314,7 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
                              f"{n_eps} episodes x ~{length:.0f} steps x {cost.collect_s_per_step} s / {w} worker(s)"))
     jobs = []
     select_eps = 21 if recipe.select == "closed_loop" else 0
-    for m in recipe.models:
+    for m in (recipe.models if models is None else models):
         if recipe.train_minutes > 0:
             t = 60 * recipe.train_minutes
         else:
@@ -351,6 +355,7 @@ def format_duration(seconds: float) -> str:
 def format_estimate(stages: list[StageEstimate]) -> str:
     """The estimate as printed before a run: one line per stage, then the total."""
     width = max(len(s.stage) for s in stages)
-    lines = [f"  {s.stage:<{width}}  {format_duration(s.seconds):>11}  {s.detail}" for s in stages]
+    lines = [f"  {s.stage:<{width}}  {'done' if s.done else format_duration(s.seconds):>11}  {s.detail}" for s in stages]
     total = sum(s.seconds for s in stages)
-    return "\n".join(lines + [f"  {'total':<{width}}  {format_duration(total):>11}"])
+    left = "  left to run" if any(s.done for s in stages) else ""
+    return "\n".join(lines + [f"  {'total':<{width}}  {format_duration(total):>11}{left}"])

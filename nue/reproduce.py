@@ -27,7 +27,7 @@ import os
 import platform
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -37,7 +37,7 @@ from nue.evaluate.results_md import render_results_md
 from nue.evaluate.runner import EvalConfig, episode_files, run_eval
 from nue.jobs import Job, fail_point, run_jobs
 from nue.policy.config import get_model_config
-from nue.recipe import Recipe, estimate, format_duration, format_estimate
+from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, format_duration, format_estimate
 from nue.scene.generator import SPLITS, ensure_house
 from nue.sim.episode_sets import get_episode_set
 from nue.train.bc import TrainConfig, train
@@ -204,6 +204,39 @@ def _houses(recipe: Recipe) -> list[tuple[str, int]]:
 
 
 # --- the run --------------------------------------------------------------------------------------------
+def _lines(path: Path) -> int:
+    if not path.is_file():
+        return 0
+    with path.open("rb") as f:
+        return sum(1 for line in f if line.strip())
+
+
+def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, compiled: bool = False) -> list[StageEstimate]:
+    """:func:`~nue.recipe.estimate` of what is left of a (resumed) run: stages finished earlier are marked done,
+    the training stage counts only the models not trained yet, and an evaluation stage is scaled by the share of
+    its (episode, method) runs its records file does not hold yet (the runs go episode by episode, every method
+    of an episode together, so that share is also a share of the cost)."""
+    pending = [m for m in recipe.models if stage_done(folders, f"train/{m}") is None]
+    counts = episode_counts(recipe)
+    out = []
+    for s in estimate(recipe, workers, compiled=compiled, models=pending):
+        done = not pending if s.stage == "train" else stage_done(folders, s.stage) is not None
+        if done:
+            out.append(replace(s, seconds=0.0, done=True, detail="finished in an earlier call"))
+        elif s.stage == "train" and len(pending) < len(recipe.models):
+            out.append(replace(s, detail=f"{s.detail}; {len(recipe.models) - len(pending)} trained earlier"))
+        elif s.stage.startswith("eval/"):
+            name = s.stage.removeprefix("eval/")
+            methods = len(recipe.swap_maps) if name.endswith("+swap") else len(recipe.models) + len(recipe.experts)
+            runs = counts[name.removesuffix("+swap")] * methods
+            have = min(_lines(folders.records(s.stage)), runs)
+            out.append(replace(s, seconds=s.seconds * (1 - have / max(runs, 1)),
+                               detail=s.detail + (f"; {have:,} of {runs:,} runs recorded" if have else "")))
+        else:
+            out.append(s)
+    return out
+
+
 def plan_stages(recipe: Recipe) -> list[str]:
     """Stage names of a recipe, in order."""
     stages = ["scenes", "collect", *[f"train/{m}" for m in recipe.models]]
@@ -221,7 +254,7 @@ def reproduce(recipe: Recipe, out, scenes_root="data/scenes", episodes_root="epi
     (``TrainConfig.compile``: the same arithmetic, rounded differently; a run may switch it between calls)."""
     folders = RunFolders(Path(out), Path(scenes_root), Path(episodes_root))
     check_recipe(folders.out, recipe)
-    est = {s.stage: s for s in estimate(recipe, workers, compiled=compile)}
+    est = {s.stage: s for s in remaining_estimate(recipe, folders, workers, compile)}
     echo(f"nue reproduce: recipe {recipe.name!r} -> {folders.out}; estimated wall-clock with {workers} worker(s):\n"
          f"{format_estimate(list(est.values()))}")
     stages = plan_stages(recipe)

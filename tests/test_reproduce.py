@@ -84,9 +84,21 @@ def test_a_killed_run_resumes_without_redoing_a_stage(run):
         assert f"{stage}: finished in an earlier call" in text
         assert f"  {stage}: done" not in text
     assert "  train/abl_none: done" in text and "  report: done" in text
+    estimate_lines = text[: text.index("[1/")].splitlines()
+    assert any(line.split()[:2] == ["collect", "done"] for line in estimate_lines)  # the rerun estimates what is left
+    assert "1 trained earlier" in text and estimate_lines[-1].endswith("left to run")
     for part, stamps in before.items():  # collected episodes, the finished model's run folder, the stage markers
         now = _stamps(out / part)
         assert {k: now[k] for k in stamps} == stamps, part
+
+
+def test_estimate_only_prints_what_is_left_of_a_run_and_refuses_another_recipe(run):
+    out, _, _, _, args = run
+    code, text = _nue(*args, "--estimate")
+    assert code == 0 and all(line.split()[1] == "done" for line in text.splitlines()[1:-1]), text
+    assert text.splitlines()[-1].split()[:3] == ["total", "0", "s"]
+    code, _ = _nue("reproduce", "--recipe", "v6", "--out", out, "--estimate")
+    assert code == 2
 
 
 def test_a_recipe_with_dagger_rounds_trains_through_them(run, tmp_path):
@@ -169,6 +181,33 @@ def test_the_estimate_covers_every_stage_and_scales_with_workers():
     assert by["train"] >= 4 * 34 * 60  # 8 models x 34 min, two at a time
     assert sum(s.seconds for s in two) < sum(s.seconds for s in one)
     assert format_estimate(two).splitlines()[-1].split()[0] == "total"
+
+
+def test_a_resumed_run_estimates_only_what_is_left(tmp_path):
+    """Finished stages count 0, training only the models not trained yet, an evaluation stage the share of its
+    (episode, method) runs not recorded yet."""
+    from nue.reproduce import remaining_estimate
+
+    v6 = get_recipe("v6")
+    folders = RunFolders(tmp_path, Path(), Path())
+    fresh = {s.stage: s for s in remaining_estimate(v6, folders, 2)}
+    assert fresh == {s.stage: s for s in estimate(v6, 2)}  # nothing done yet: the whole estimate
+    folders.marker("collect").parent.mkdir(parents=True)
+    for stage in ["scenes", "collect", *[f"train/{m}" for m in v6.models[:6]]]:
+        folders.marker(stage).write_text(json.dumps({"stage": stage, "seconds": 1.0}))
+    runs = 252 * (len(v6.models) + len(v6.experts))
+    folders.records("eval/val252").parent.mkdir()
+    folders.records("eval/val252").write_text("{}\n" * (runs // 4))  # a quarter of the runs recorded
+    left = {s.stage: s for s in remaining_estimate(v6, folders, 2)}
+    assert left["scenes"].done and left["collect"].done and left["scenes"].seconds == left["collect"].seconds == 0
+    two_models = {s.stage: s for s in estimate(v6, 2, models=v6.models[6:])}["train"].seconds
+    assert not left["train"].done and left["train"].seconds == two_models < fresh["train"].seconds
+    assert "6 trained earlier" in left["train"].detail
+    assert left["eval/val252"].seconds == pytest.approx(0.75 * fresh["eval/val252"].seconds)
+    assert f"{runs // 4:,} of {runs:,} runs recorded" in left["eval/val252"].detail
+    assert left["eval/val_plain"] == fresh["eval/val_plain"]
+    text = format_estimate(list(left.values()))
+    assert text.splitlines()[0].split()[:2] == ["scenes", "done"] and text.endswith("left to run")
 
 
 def test_a_compiled_run_estimates_shorter_training_by_the_measured_speedup():
