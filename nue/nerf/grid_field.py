@@ -158,7 +158,9 @@ class GridField(nn.Module):
         else:
             variance = F.softplus(raw[:, 1] + self.variance_shift) + c.beta_min
         dir_part = self.colour_dir(self.dir_enc(d))
-        return colour_head(self.colour_code(raw[:, 2:]), dir_part, x, d, self.colour_out, density, variance)
+        # a contiguous copy of the code columns first: a GEMM on the strided slice takes a path ~2.5x slower
+        # on CPU (same result, bit for bit)
+        return colour_head(self.colour_code(raw[:, 2:].contiguous()), dir_part, x, d, self.colour_out, density, variance)
 
     def flops_per_point(self, samples_per_ray: int = 1) -> float:
         """FLOPs of one point query: trilinear read (8 corners x channels, multiply-add) + colour GEMMs;
@@ -282,7 +284,10 @@ class RowAdam:
             idx = torch.nonzero(g.abs().sum(dim=1)).squeeze(1)
             vals = g[idx]
         rows, inverse = self._unique_rows(idx)
-        grad = torch.zeros(rows.numel(), vals.shape[1], dtype=vals.dtype, device=vals.device).index_add_(0, inverse, vals)
+        # duplicates summed in the gradient's order (index_put_'s accumulate is index_add_'s sum, op for op, and
+        # on CPU about twice as fast for rows this narrow)
+        grad = torch.zeros(rows.numel(), vals.shape[1], dtype=vals.dtype, device=vals.device)
+        grad.index_put_((inverse,), vals, accumulate=True)
         b1, b2 = self.betas
         moments = self._moments.index_select(0, rows)
         m, v = moments[:, 0], moments[:, 1]
@@ -290,5 +295,7 @@ class RowAdam:
         v.mul_(b2).addcmul_(grad, grad, value=1 - b2)
         self._moments.index_copy_(0, rows, moments)
         step_size = self.lr * math.sqrt(1 - b2**self.steps) / (1 - b1**self.steps)
-        # table - step m / (sqrt(v) + eps), as an add of the negated step (the rows are distinct)
-        self.table.index_add_(0, rows, (-step_size) * m / (v.sqrt() + self.eps))
+        # table - step m / (sqrt(v) + eps), as an add of the negated step; the rows are distinct, so a gather,
+        # an add and a scatter give index_add_'s result
+        delta = (-step_size) * m / (v.sqrt() + self.eps)
+        self.table.index_copy_(0, rows, self.table.index_select(0, rows).add_(delta))
