@@ -2,6 +2,9 @@
 # Keep what a multi-session `nue reproduce` run has proved in git, and put it back on a fresh machine.
 #   bash results/reproduce/sync.sh save     runs/reproduce -> results/reproduce/run (recipe, stage markers, the
 #                                           best.pt and selection summary of every finished model, records)
+#   bash results/reproduce/sync.sh autosave [MINUTES]  save every MINUTES (default 20) and commit the records and
+#                                           stage markers only (git commit -- <those paths>), until killed: a session
+#                                           that ends without warning keeps what its evaluation had recorded
 #   bash results/reproduce/sync.sh restore  results/reproduce/run -> runs/reproduce; without the demonstrations
 #                                           (8.7 GB, never committed) and with a model still to train, the collect
 #                                           marker is dropped, so that model finds its data again (the collection is
@@ -36,5 +39,14 @@ case "${1:-}" in
     trained=$(find "$run/stages" -name 'train__*.json' | wc -l)
     if [ ! -d "$run/demos" ] && [ "$trained" -lt "$models" ]; then rm -f "$run/stages/collect.json"; fi
     ls "$run/stages" ;;
-  *) echo "usage: $0 save|restore" >&2; exit 2 ;;
+  autosave)
+    minutes=${2:-20}
+    while true; do
+      sleep $((60 * minutes))
+      RUN=$run bash "$0" save > /dev/null || continue
+      n=$(cat "$store"/records/*.jsonl 2>/dev/null | wc -l)
+      git add "$store/records" "$store/stages" 2>/dev/null || continue
+      git commit -q -m "reproduce run: evaluation records so far ($n runs recorded, sync.sh autosave)" -- "$store/records" "$store/stages" > /dev/null 2>&1 || true
+    done ;;
+  *) echo "usage: $0 save|restore|autosave [MINUTES]" >&2; exit 2 ;;
 esac
