@@ -72,7 +72,8 @@ class _Frame:
 
     def __init__(self, depth: np.ndarray, pose, camera: CameraConfig, floor_z: float):
         z = np.array(depth, dtype=np.float64).reshape(camera.height, camera.width)
-        self.z = np.nan_to_num(z, copy=False, nan=0.0)
+        # nan_to_num makes six passes over the frame; one finiteness test spares them when there is nothing to replace
+        self.z = z if np.isfinite(z).all() else np.nan_to_num(z, copy=False, nan=0.0)
         self.m = world_from_camera(pose, camera, floor_z)
         self._dirs = _pixel_directions(camera).reshape(-1, 3)
         level = self.m[2, 0] == 0.0 and self.m[2, 1] == -1.0 and self.m[2, 2] == 0.0
@@ -89,7 +90,8 @@ class _Frame:
         """(K, 2) world (x, y) of the pixels with flat indices ``flat (K,)``."""
         if self._points is not None:
             return self._points[flat, :2]
-        p_cam = self._dirs[flat] * self.z.reshape(-1)[flat, None]
+        # np.take gathers rows ~2x faster than fancy indexing (the same values)
+        p_cam = np.take(self._dirs, flat, axis=0) * np.take(self.z.reshape(-1), flat)[:, None]
         return (p_cam @ self.m[:3, :3].T + self.m[:3, 3])[:, :2]
 
 
@@ -110,8 +112,12 @@ def _frame_points(depth: np.ndarray, pose, camera: CameraConfig, floor_z: float)
 def _mark(mask: np.ndarray, grid: GridLike, xy: np.ndarray) -> None:
     """Set the cells containing world points ``xy`` (K, 2) (those inside the grid)."""
     rc = np.asarray(grid.cell_of(xy)).reshape(-1, 2)
-    ok = (rc[:, 0] >= 0) & (rc[:, 0] < mask.shape[0]) & (rc[:, 1] >= 0) & (rc[:, 1] < mask.shape[1])
-    mask[rc[ok, 0], rc[ok, 1]] = True
+    r, c = rc[:, 0], rc[:, 1]
+    ok = (r >= 0) & (r < mask.shape[0]) & (c >= 0) & (c < mask.shape[1])
+    if mask.flags.c_contiguous:  # flat indices into a view: cheaper than a 2-d fancy write
+        mask.reshape(-1)[np.compress(ok, r * mask.shape[1] + c)] = True
+    else:
+        mask[r[ok], c[ok]] = True
 
 
 def _within(dx: np.ndarray, dy: np.ndarray, r: float) -> np.ndarray:
@@ -170,12 +176,12 @@ def _floor_mask(frame: _Frame, pose, camera: CameraConfig, grid: GridLike, floor
     xy = frame.world_xy(flat)
     near = _within(xy[:, 0] - x0, xy[:, 1] - y0, config.max_range)
     floor_px = np.zeros(h * w, dtype=bool)
-    floor_px[flat[near]] = True
+    floor_px[np.compress(near, flat)] = True
     floor_px = floor_px.reshape(h, w)
     m_rows, m_cols = grid.free.shape
     mask = np.zeros((m_rows, m_cols), dtype=bool)
     # 1) cells containing a floor point
-    _mark(mask, grid, xy[near])
+    _mark(mask, grid, np.compress(near, xy, axis=0))
     # 2) cells in range whose centre's floor point projects onto a pixel that sees floor
     lo = np.asarray(grid.cell_of((x0 - config.max_range, y0 - config.max_range)))
     hi = np.asarray(grid.cell_of((x0 + config.max_range, y0 + config.max_range)))
@@ -198,11 +204,12 @@ def _floor_mask(frame: _Frame, pose, camera: CameraConfig, grid: GridLike, floor
     sel = np.flatnonzero(keep)
     m = frame.m
     p = np.empty((sel.size, 3))
-    p[:, :2] = box_centres.reshape(-1, 2)[sel]
+    p[:, 0] = box_centres[..., 0][keep]  # the cells of ``sel``, in its order, without copying the whole box first
+    p[:, 1] = box_centres[..., 1][keep]
     p[:, 2] = floor_z
     p_cam = (p - m[:3, 3]) @ m[:3, :3]  # world -> camera (rotation is orthonormal)
     front = np.flatnonzero(p_cam[:, 2] > 1e-6)
-    pf = p_cam[front]
+    pf = np.take(p_cam, front, axis=0)
     u = np.floor(camera.fx * pf[:, 0] / pf[:, 2] + camera.cx).astype(np.int64)
     v = np.floor(camera.fy * pf[:, 1] / pf[:, 2] + camera.cy).astype(np.int64)
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
