@@ -275,6 +275,7 @@ def test_resume_mismatches_names_changed_settings_and_data():
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(900)  # a cold inductor compile: ~30 s on 2 idle cores, over 300 s beside two busy evaluation workers
 def test_compiled_training_computes_what_eager_training_computes(demos, tmp_path):
     """``compile=True`` (torch.compile, inductor) trains the same function: same batches, weights within float
     rounding of eager after 4 steps; and a run may switch it on resume (how, not what, is trained)."""
