@@ -110,14 +110,12 @@ def _frame_points(depth: np.ndarray, pose, camera: CameraConfig, floor_z: float)
 
 
 def _mark(mask: np.ndarray, grid: GridLike, xy: np.ndarray) -> None:
-    """Set the cells containing world points ``xy`` (K, 2) (those inside the grid)."""
+    """Set the cells containing world points ``xy`` (K, 2) (those inside the grid) of a fresh ``mask`` (written
+    through flat indices, cheaper than a 2-d fancy write)."""
     rc = np.asarray(grid.cell_of(xy)).reshape(-1, 2)
     r, c = rc[:, 0], rc[:, 1]
     ok = (r >= 0) & (r < mask.shape[0]) & (c >= 0) & (c < mask.shape[1])
-    if mask.flags.c_contiguous:  # flat indices into a view: cheaper than a 2-d fancy write
-        mask.reshape(-1)[np.compress(ok, r * mask.shape[1] + c)] = True
-    else:
-        mask[r[ok], c[ok]] = True
+    np.ravel(mask)[np.compress(ok, r * mask.shape[1] + c)] = True
 
 
 def _within(dx: np.ndarray, dy: np.ndarray, r: float) -> np.ndarray:
