@@ -1,0 +1,126 @@
+"""Publish a finished `nue reproduce` run as the repository's shipped rows (run once, from the repository root):
+
+    python results/reproduce/publish.py --run results/reproduce/run --previous v5
+
+1. ``checkpoints/<model>.pt`` (the previous recipe's) move to ``results/<previous>/checkpoints/<model>_<previous>.pt``
+   and the run's ``runs/<model>/best.pt`` take their place;
+2. in ``results/records.jsonl``, ``records_val252.jsonl`` and ``records_val_plain.jsonl`` the previous recipe's
+   rows are renamed ``<method>_<previous>`` (``nue+swap`` -> ``nue_<previous>+swap``: RESULTS.md's "Earlier
+   recipes"), the experts' rows are replaced by the run's (the script counts how many differ: the simulator and
+   the experts are deterministic, so none should), and the run's records are added — ``records.jsonl`` gets
+   the run's ``val252`` records of the 84 episodes of ``episodes/val``. Every earlier row's ``extra.key`` becomes
+   ``<method>/<scene>/<episode_id>`` (``nue view --key`` finds a record by it; ``nue_v2``, ``nue_v3`` and ``nue_v4``
+   had all kept the key ``nue/...`` of the run that made them).
+
+Then regenerate RESULTS.md with the command the script prints (after updating RESULTS.meta.json by hand).
+``--partial`` skips the check that the run finished (for a preview into a copy: ``--root /tmp/copy``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+
+SETS = {"records.jsonl": ("val252", "val"), "records_val252.jsonl": ("val252", None),
+        "records_val_plain.jsonl": ("val_plain", None)}
+"""results file -> (the run's evaluation set whose records it gets, the episode folder that subsets them)"""
+EXPERTS = ("expert", "expert-explore")
+
+
+def fail(path, problem: str) -> None:
+    print(f"error: {path}: {problem}", file=sys.stderr)
+    sys.exit(2)
+
+
+def read_jsonl(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def renamed(method: str, models: set[str], previous: str) -> str:
+    base, swap = (method[:-5], "+swap") if method.endswith("+swap") else (method, "")
+    return f"{base}_{previous}{swap}" if base in models else method
+
+
+def episode_keys(folder: Path) -> set[tuple[str, str]]:
+    keys = set()
+    for f in sorted(folder.glob("*.json")):
+        keys |= {(f.stem, str(e["episode_id"])) for e in json.loads(f.read_text())["episodes"]}
+    return keys
+
+
+def outcome(r: dict) -> tuple:
+    return r["success"], r["steps"], r["collisions"], round(r["path_length"], 6)
+
+
+def publish_records(root: Path, run: Path, models: set[str], previous: str) -> None:
+    for name, (set_name, subset) in SETS.items():
+        path = root / "results" / name
+        old = read_jsonl(path)
+        if any(r["method"] == f"nue_{previous}" for r in old):
+            fail(path, f"already has {previous} rows renamed (published before?)")
+        new = []
+        for stage in (set_name, f"{set_name}+swap"):
+            f = run / "records" / f"{stage}.jsonl"
+            if f.exists():
+                new += read_jsonl(f)
+        if subset:
+            keys = episode_keys(root / "episodes" / subset)
+            new = [r for r in new if (r["scene"], str(r["episode_id"])) in keys]
+        ran = {(r["method"], r["scene"], str(r["episode_id"])): r for r in new}
+        kept, differ, rekeyed = [], 0, 0
+        for r in old:
+            if r["method"] in EXPERTS:
+                twin = ran.get((r["method"], r["scene"], str(r["episode_id"])))
+                differ += twin is not None and outcome(twin) != outcome(r)
+                if twin is not None:
+                    continue  # the run's record of the same expert episode replaces it
+            method = renamed(r["method"], models, previous)
+            key = f"{method}/{r['scene']}/{r['episode_id']}"  # `nue view --key` finds a row by it: one per row
+            rekeyed += r["extra"].get("key") != key
+            kept.append({**r, "method": method, "extra": {**r["extra"], "key": key}})
+        path.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in kept + new))
+        print(f"{path}: {len(old)} -> {len(kept) + len(new)} records ({len(new)} from the run; "
+              f"expert episodes whose outcome differs from the earlier record: {differ}; earlier rows re-keyed "
+              f"<method>/<scene>/<episode>: {rekeyed})")
+
+
+def publish_checkpoints(root: Path, run: Path, models: list[str], previous: str) -> None:
+    keep = root / "results" / previous / "checkpoints"
+    keep.mkdir(parents=True, exist_ok=True)
+    for m in models:
+        best = run / "runs" / m / "best.pt"
+        if not best.exists():
+            fail(best, "missing (the model was not trained in this run)")
+        target = keep / f"{m}_{previous}.pt"
+        if target.exists():
+            fail(target, "exists already (published before?)")
+        shutil.move(root / "checkpoints" / f"{m}.pt", target)
+        shutil.copyfile(best, root / "checkpoints" / f"{m}.pt")
+    size = sum(f.stat().st_size for f in (root / "checkpoints").glob("*.pt"))
+    print(f"checkpoints/: {len(models)} files replaced, {size / 2**20:.1f} MiB of .pt in all")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--run", type=Path, default=Path("results/reproduce/run"))
+    ap.add_argument("--previous", required=True, help="name of the recipe being replaced, e.g. v5")
+    ap.add_argument("--root", type=Path, default=Path("."), help="the repository (or a copy of it)")
+    ap.add_argument("--partial", action="store_true", help="do not require the run's report stage")
+    a = ap.parse_args()
+    recipe_file = a.run / "recipe.json"
+    if not recipe_file.exists():
+        fail(recipe_file, "missing: not a reproduce run")
+    models = list(json.loads(recipe_file.read_text())["recipe"]["models"])
+    if not a.partial and not (a.run / "stages" / "report.json").exists():
+        fail(a.run / "stages", "the run has not finished (no report.json); --partial previews it")
+    publish_checkpoints(a.root, a.run, models, a.previous)
+    publish_records(a.root, a.run, set(models), a.previous)
+    print("next: update RESULTS.meta.json, then\n  nue report results/records.jsonl --set val252=results/records_val252.jsonl "
+          "--set val_plain=results/records_val_plain.jsonl --out results/report --results-md RESULTS.md")
+
+
+if __name__ == "__main__":
+    main()
