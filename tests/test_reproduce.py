@@ -170,6 +170,22 @@ def test_v5_trains_as_the_shipped_checkpoints_were_trained(model):
     assert train_config(v6, "nue", folders).time_budget_s == 0 and train_config(v6, "nav_a3c", folders).steps == 4000
 
 
+@pytest.mark.parametrize("model", TABLE_I_MODELS)
+def test_the_v6_run_trained_every_model_as_the_recipe_says(model):
+    """The committed `nue reproduce` run (``results/reproduce/run``): every training setting stored in each
+    model's ``best.pt`` is what v6 gives that model with ``--compile`` (how the run was started), paths aside,
+    it trained in fp32, and every model saw the same 4,000 steps of 64 samples of the same demonstrations."""
+    _, header = load_policy(EPISODES.parent / "results" / "reproduce" / "run" / "runs" / model / "best.pt")
+    folders = RunFolders(Path("/nowhere"), Path("data/scenes"), Path("episodes"))
+    ours = dataclasses.asdict(train_config(get_recipe("v6"), model, folders, compile=True))
+    paths = {"data", "out", "select_episodes", "select_scenes_root"}
+    stored = {k: v for k, v in header.train_config.items() if k not in paths}
+    assert stored.pop("precision_resolved") == "fp32"  # precision auto on a CPU without native bf16
+    assert stored == {k: v for k, v in ours.items() if k not in paths}
+    assert stored["steps"] * stored["batch_size"] * (8 if model == "nav_a3c" else 1) == 256_000
+    assert header.manifest_hash == "cc12e17f2c5e6ce1"
+
+
 def test_the_estimate_covers_every_stage_and_scales_with_workers():
     v3 = get_recipe("v3")
     one, two = estimate(v3, 1), estimate(v3, 2)
