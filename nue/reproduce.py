@@ -11,7 +11,8 @@ Stages, in order (each one calls the library function of its command, and each i
 ``eval/<set>``      ``nue eval`` of every model and expert on the set into ``OUT/records/<set>.jsonl``
 ``eval/<set>+swap`` the swapped-maps control on each set
 ``report``          ``nue report`` per set (``OUT/report/<set>/``: tables and coverage.png; a set that extends
-                    another also reports the smaller one from the same records) and ``OUT/RESULTS.md``
+                    another also reports the smaller one from the same records) and ``OUT/RESULTS.md`` (with each
+                    stage's wall-clock in the call that finished it, and an evaluation's summed episode time)
 ==================  ==========================================================================================
 
 The recipe is stored in ``OUT/recipe.json`` when a run starts; a rerun with another recipe is refused.
@@ -377,6 +378,15 @@ def report_tables(recipe: Recipe, folders: RunFolders) -> dict[str, list]:
     return tables
 
 
+def _episode_time(folders: RunFolders, stage: str) -> str:
+    """For an evaluation stage, its runs and their summed episode time from its records (a stage's marker times
+    only the call that finished it; a stage resumed across calls spent more)."""
+    if not stage.startswith("eval/"):
+        return ""
+    recs = load_records(folders.records(stage))
+    return f" ({len(recs)} run{'' if len(recs) == 1 else 's'}, {format_duration(sum(r.wall_time for r in recs))} of episode time summed over workers)"
+
+
 def write_results(recipe: Recipe, folders: RunFolders) -> Path:
     """``OUT/report/<table>/`` for every table and ``OUT/RESULTS.md`` (the first set in full, then the others)."""
     tables = report_tables(recipe, folders)
@@ -395,7 +405,8 @@ def write_results(recipe: Recipe, folders: RunFolders) -> Path:
         "episodes": f"`{main}`: {get_episode_set(main).description}",
         "demonstrations": (f"{collected.get('episodes', '?')} episodes, {collected.get('steps', '?')} steps, expert SR "
                            f"{100 * collected.get('expert_success_rate', 0):.1f}%"),
-        "stage wall-clock": "; ".join(f"{s} {format_duration(m['seconds'])}" for s, m in walls.items() if m),
+        "stage wall-clock": "; ".join(f"{s} {format_duration(m['seconds'])}{_episode_time(folders, s)}"
+                                      for s, m in walls.items() if m),
     }
     text = render_results_md(tables[main], meta, recipe.task, sets={k: v for k, v in tables.items() if k != main})
     path = folders.out / "RESULTS.md"

@@ -73,6 +73,9 @@ def test_quick_run_prints_its_estimate_and_reaches_results(run):
     results = (out / "RESULTS.md").read_text()
     assert "## Table I: ours next to the paper" in results and "nue reproduce --recipe quick" in results
     assert "## Table I on `val`" in results and "## Table I on `val_plain`" in results
+    # each evaluation stage's runs counted from its records (its marker times only the call that finished it)
+    for name, recs in records.items():
+        assert f"eval/{name} " in results and f" ({len(recs)} run" in results.split(f"eval/{name} ")[1].split(";")[0]
     for table in ("val252", "val", "val_plain"):
         assert (out / "report" / table / "table.md").is_file() and (out / "report" / table / "coverage.png").is_file()
     assert json.loads((out / "recipe.json").read_text())["recipe"] == RECIPES["quick"].to_dict()
