@@ -14,6 +14,9 @@
 
 Then regenerate RESULTS.md with the command the script prints (after updating RESULTS.meta.json by hand).
 ``--partial`` skips the check that the run finished (for a preview into a copy: ``--root /tmp/copy``).
+``--table`` only prints the run's table for ``checkpoints/README.md`` (parameters, size, samples, closed-loop
+selection, and on the 84 episodes of ``episodes/val`` SR, SPL, collisions, P(forward | blocked), NUE minus it),
+computed from the run's files, and changes nothing.
 """
 
 from __future__ import annotations
@@ -103,17 +106,56 @@ def publish_checkpoints(root: Path, run: Path, models: list[str], previous: str)
     print(f"checkpoints/: {len(models)} files replaced, {size / 2**20:.1f} MiB of .pt in all")
 
 
+def checkpoint_table(root: Path, run: Path, models: list[str]) -> str:
+    """The markdown table of the run's models (needs the package: ``.venv/bin/python``)."""
+    from nue.evaluate.diagnose import record_diagnostics
+    from nue.evaluate.metrics import summarize
+    from nue.evaluate.report import load_records, method_label, paired_differences
+    from nue.sim.record import EpisodeRecord
+    from nue.train.checkpoint import load_policy
+
+    keys = episode_keys(root / "episodes" / "val")
+    recs = [EpisodeRecord.from_dict(r) for r in read_jsonl(run / "records" / "val252.jsonl")
+            if (r["scene"], str(r["episode_id"])) in keys]
+    diags = record_diagnostics(recs)
+    diffs = {d.method: d for d in paired_differences(recs, metrics=("sr",))}
+    lines = ["| file | model | parameters | size | samples (selected step / last) | closed-loop selection SR (21 "
+             "training-house episodes) | SR on the 84 val episodes | SPL | collisions / episode | P(forward \\| blocked) "
+             "| NUE − it (paired 95%) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for m in models:
+        best = run / "runs" / m / "best.pt"
+        policy, header = load_policy(best)
+        params = sum(p.numel() for p in policy.parameters())
+        cfg = header.train_config
+        per_step = cfg["batch_size"] * (8 if m == "nav_a3c" else 1)
+        sel = json.loads((run / "runs" / m / "selection.json").read_text())
+        chosen = next(c for c in sel["candidates"] if c["name"] == sel["selected"])
+        mine = [r for r in recs if r.method == m]
+        sr, spl = summarize(mine).sr, summarize(mine).spl
+        d = diags[m]
+        diff = "–" if m == "nue" else (lambda x: f"{-100 * x.mean:+.1f} [{-100 * x.hi:+.1f}, {-100 * x.lo:+.1f}]")(diffs[m])
+        lines.append(f"| `{m}.pt` | {method_label(m)} | {params:,} | {best.stat().st_size / 1e6:.1f} MB | "
+                     f"{chosen['step'] * per_step / 1000:.0f}k ({chosen['step']:,} / {cfg['steps']:,}) | "
+                     f"{round(chosen['sr'] * chosen['n'])} / {chosen['n']} | {100 * sr:.1f}% | {spl:.3f} | "
+                     f"{d.collisions_per_episode:.2f} | {100 * d.p_forward_after_blocked:.1f}% | {diff} |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--run", type=Path, default=Path("results/reproduce/run"))
     ap.add_argument("--previous", required=True, help="name of the recipe being replaced, e.g. v5")
     ap.add_argument("--root", type=Path, default=Path("."), help="the repository (or a copy of it)")
     ap.add_argument("--partial", action="store_true", help="do not require the run's report stage")
+    ap.add_argument("--table", action="store_true", help="only print the table for checkpoints/README.md")
     a = ap.parse_args()
     recipe_file = a.run / "recipe.json"
     if not recipe_file.exists():
         fail(recipe_file, "missing: not a reproduce run")
     models = list(json.loads(recipe_file.read_text())["recipe"]["models"])
+    if a.table:
+        print(checkpoint_table(a.root, a.run, models))
+        return
     if not a.partial and not (a.run / "stages" / "report.json").exists():
         fail(a.run / "stages", "the run has not finished (no report.json); --partial previews it")
     publish_checkpoints(a.root, a.run, models, a.previous)
