@@ -209,6 +209,12 @@ def test_results_md_puts_earlier_recipes_in_their_own_table():
     assert RM.is_earlier_recipe("fr_v12") and not RM.is_earlier_recipe("fr") and not RM.is_earlier_recipe("v2_nue")
     assert RM.is_earlier_recipe("nue_v5a") and RM.is_earlier_recipe("nue_v5a+swap") and not RM.is_earlier_recipe("nue+swap")
     assert "## Earlier recipes" not in RM.render_results_md(hand_records(), {"command": "x"})
+    # in a further set's section (the 84-episode set beside the 252-episode one): its own earlier-recipes table
+    section = RM.render_results_md(hand_records(), {"command": "x"}, sets={"val": recs}).split("## Table I on `val`")[1]
+    table1, rest = section.split("Earlier recipes on `val`")
+    assert "| NUE (full) | 4 |" in table1 and "nue_v2" not in table1
+    assert "| nue_v2 | 4 | 0.0 [0.0, 65.8] |" in rest.split("\n\n")[1] and "| nue_v2 | 4 | -50.0 [" in rest
+    assert "Earlier recipes on" not in RM.render_results_md(hand_records(), {"command": "x"}, sets={"val": hand_records()})
 
 
 def test_seen_floor_cells_rendered_occlusion(box_nav, box_renderer):

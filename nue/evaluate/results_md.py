@@ -59,13 +59,17 @@ def set_section_markdown(name: str, records: Sequence[EpisodeRecord], descriptio
     """RESULTS.md's section of a further episode set ``name``: Table I next to the paper, the episodes per
     cell, the ordering against the paper's, the paired differences to NUE, coverage and the closed-loop
     diagnostics, all from ``records`` (that set's). Earlier recipes' ``*_v<N>`` rows are left out of the
-    table and the ordering, as in the main one."""
+    table and the ordering, as in the main one, and get a table of their own after the episode counts."""
     current = [r for r in records if not is_earlier_recipe(r.method)]
+    earlier = [r for r in records if is_earlier_recipe(r.method)]
     rows = build_table(current)
     paper = paper_table()
     parts = [f"## Table I on `{name}`" + (f": {description}" if description else "") + "\n\n"
              f"{format_markdown(rows, paper)}\n{NOTES}\n\n"
              f"Episodes per cell (successes / episodes):\n\n{_counts_markdown(current, rows)}"]
+    if earlier:
+        parts.append(f"Earlier recipes on `{name}` (`<method>_v<N>`, see \"Earlier recipes\" above; kept in the "
+                     f"comparisons below):\n\n{format_markdown(build_table(earlier))}")
     parts += _comparison_parts(rows, paper, records, f" on `{name}`")
     if records:
         parts.append(f"Closed-loop diagnostics on `{name}`:\n\n{closed_loop_markdown(records, task)}")
