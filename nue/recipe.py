@@ -232,20 +232,24 @@ class CostModel:
     """Episodes grow by 1 + this x noise (v2: 52.3 steps at noise 0.3 vs 36.8 without)."""
     house_s: float = 3.0
     """Generating one house (and loading it), seconds."""
-    samples_per_s: tuple[tuple[str, float], ...] = (("nue", 57.0), ("fr", 134.0), ("nav_a3c", 113.0))
-    """Training throughput per model kind, two trainings side by side on a 2-core CPU without native bf16 (fp32):
-    NUE measured in the v6 run of 2026-12-03 (57 samples/s each); FR and Nav-A3C scaled from it by their ratio to
-    NUE in benchmarks/results/train_no_native_bf16.json (2.35x) and in the v2 bf16 runs (Nav-A3C 0.85x FR)."""
+    samples_per_s: tuple[tuple[str, float], ...] = (("nue", 98.0), ("fr", 200.0), ("nav_a3c", 232.0))
+    """Eager training throughput per model kind, two trainings side by side on a 2-core Xeon without native bf16
+    (fp32): the compiled rates of the v6 run (``results/reproduce/run/stages``, 256,000 samples in ``train_seconds``:
+    the six NUE-family models 136-163 samples/s, mean 147; FR 330; Nav-A3C 334) divided by ``compiled_speedup``.
+    Session 1 of that run, eager on an AMD EPYC, trained NUE at 51-57 samples/s."""
     compiled_speedup: tuple[tuple[str, float], ...] = (("nue", 1.5), ("fr", 1.65), ("nav_a3c", 1.44))
     """Training throughput with ``nue train --compile`` relative to eager, per model kind: eager and compiled steps
     interleaved in one process (batch 64 / 8 x 8 sequences, fp32, one thread, synthetic data, aed64cc, a busy
     2-core Xeon without native bf16)."""
-    select_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 15.0), ("fr", 2.2), ("nav_a3c", 2.2))
-    """Closed-loop selection, seconds per episode (400-step limit; v2 / v3: NUE 11.1 / 19.4, FR 1.9 / 2.3)."""
-    eval_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 20.0), ("fr", 5.0), ("nav_a3c", 5.0),
-                                                         ("expert", 2.0), ("expert-explore", 5.0), ("swap", 20.0))
-    """Evaluation, seconds per episode per worker (abl_at_cbam on val_plain at 20da927: 42.5 min x 2 workers /
-    252 = 20.2; v2 / v3 NUE 21 / 29, FR 2.4 / 6.9; swapped maps ~ NUE)."""
+    select_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 11.5), ("fr", 1.7), ("nav_a3c", 1.9))
+    """Closed-loop selection, seconds per episode (400-step limit; the v6 run: 2 x 21 episodes in 7.2-8.6 min per
+    NUE-family model, 73 s FR, 79 s Nav-A3C)."""
+    eval_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 13.3), ("fr", 3.4), ("nav_a3c", 3.9),
+                                                         ("expert", 0.2), ("expert-explore", 1.7), ("swap", 4.3))
+    """Evaluation, seconds per episode per worker, two workers: the mean ``wall_time`` of the v6 run's val252
+    records (the six NUE-family models 12.5-14.1 s, 325-381 steps an episode at 36-40 ms a step). The swapped-maps
+    control replays maps recorded along the expert's run of another episode, so its agent neither renders nor
+    trains a memory."""
     train_overhead_s: float = 10.0
     """Per model: loading the demonstrations, building the model, checkpoints, seconds."""
     eval_overhead_s: float = 5.0
