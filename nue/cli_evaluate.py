@@ -107,6 +107,8 @@ def report_cmd(
     episode_set: list[str] = typer.Option([], "--set", help="NAME=FILE: records of a further episode set (e.g. "
                                           "val252=results/records_val252.jsonl), its own section in RESULTS.md and "
                                           "report folder OUT/NAME; repeatable."),
+    name: str = typer.Option("", help="The episode set of RECORDS (e.g. val252), as RESULTS.md's pooled section names "
+                             "it; default \"Table I's episodes\"."),
 ):
     """Table I (SR / SPL / DTS per difficulty, CIs, paired differences to NUE) and coverage."""
     import json
@@ -138,7 +140,7 @@ def report_cmd(
         meta_path = results_md.parent / f"{results_md.stem}.meta.json"
         meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {
             "command": command, "date": "", "commit": "", "machine": f"{platform.machine()}, {os.cpu_count()} CPUs"}
-        results_md.write_text(render_results_md(recs, meta, task, sets=sets))
+        results_md.write_text(render_results_md(recs, meta, task, sets=sets, main_name=name))
         typer.echo(f"wrote {results_md}")
     typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
 

@@ -408,7 +408,8 @@ def write_results(recipe: Recipe, folders: RunFolders) -> Path:
         "stage wall-clock": "; ".join(f"{s} {format_duration(m['seconds'])}{_episode_time(folders, s)}"
                                       for s, m in walls.items() if m),
     }
-    text = render_results_md(tables[main], meta, recipe.task, sets={k: v for k, v in tables.items() if k != main})
+    text = render_results_md(tables[main], meta, recipe.task, sets={k: v for k, v in tables.items() if k != main},
+                             main_name=main)
     path = folders.out / "RESULTS.md"
     path.write_text(text)
     return path

@@ -285,6 +285,8 @@ def test_two_further_sets_are_also_pooled_over_the_methods_that_ran_both():
     val = [r for r in a if r.episode_id in ("0", "1")]  # the first episodes of a, as episodes/val of val252
     again = RM.render_results_md(a, {"command": "x"}, sets={"val": val, "val_plain": b})
     assert "## Pooled: Table I's episodes + `val_plain`\n" in again and "| FR | 8 | +0.0 [" in again.split("## Pooled")[1]
+    named = RM.render_results_md(a, {"command": "x"}, sets={"val": val, "val_plain": b}, main_name="val252")
+    assert named == again.replace("## Pooled: Table I's episodes + `val_plain`\n", "## Pooled: `val252` + `val_plain`\n")
 
 
 def test_an_episode_ending_off_the_planning_grid_is_left_out_of_dts_only():

@@ -73,6 +73,9 @@ def test_quick_run_prints_its_estimate_and_reaches_results(run):
     results = (out / "RESULTS.md").read_text()
     assert "## Table I: ours next to the paper" in results and "nue reproduce --recipe quick" in results
     assert "## Table I on `val`" in results and "## Table I on `val_plain`" in results
+    # the quick run's val252 episodes are val's, and of two equal sets the further one is pooled (named, not
+    # "Table I's episodes"); in a full run val lies inside val252 and the section is "`val252` + `val_plain`"
+    assert "## Pooled: `val` + `val_plain`\n" in results
     # each evaluation stage's runs counted from its records (its marker times only the call that finished it)
     for name, recs in records.items():
         assert f"eval/{name} " in results and f" ({len(recs)} run" in results.split(f"eval/{name} ")[1].split(";")[0]

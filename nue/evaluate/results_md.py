@@ -95,7 +95,7 @@ def pooled_section_markdown(sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
     pooled = [r for recs in per_set.values() for r in recs if canonical_method(r.method) in common]
     if not pooled:
         return ""
-    names = " + ".join(n if n == MAIN_SET else f"`{n}`" for n in sets)
+    names = " + ".join(n if n == MAIN_SET else f"`{n}`" for n in sets)  # a named main set in backticks too
     rows = build_table(pooled)
     paper = paper_table()
     both = "both" if len(sets) == 2 else f"all {len(sets)}"
@@ -106,14 +106,15 @@ def pooled_section_markdown(sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
 
 
 def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, object], task: str = "paper",
-                      sets: Mapping[str, Sequence[EpisodeRecord]] | None = None) -> str:
+                      sets: Mapping[str, Sequence[EpisodeRecord]] | None = None, main_name: str = "") -> str:
     """The text of RESULTS.md, a pure function of the records and ``meta``.
 
     ``meta``: ``command``, ``date``, ``commit``, ``machine`` (shown first), any other keys
     (sorted). Methods named ``<method>_v<N>`` (:func:`is_earlier_recipe`) get their own table after
     Table I and stay in the paired differences, coverage and diagnostics. ``sets``: the records of
     further episode sets (name -> records), each given its own section (:func:`set_section_markdown`)
-    before the discussion. Same inputs give the same bytes (the bootstrap is seeded).
+    before the discussion; ``main_name``: the main records' episode set (``val252``), as the pooled section names
+    it (default "Table I's episodes"). Same inputs give the same bytes (the bootstrap is seeded).
     """
     current = [r for r in records if not is_earlier_recipe(r.method)]
     earlier = [r for r in records if is_earlier_recipe(r.method)]
@@ -156,7 +157,7 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
         for name, recs in sets.items():
             spec = EPISODE_SETS.get(name)
             parts.append(set_section_markdown(name, recs, spec.description if spec else "", task))
-        pooled = pooled_section_markdown({MAIN_SET: records, **sets})
+        pooled = pooled_section_markdown({main_name or MAIN_SET: records, **sets})
         if pooled:
             parts.append(pooled)
     if meta.get("discussion"):

@@ -162,7 +162,7 @@ def main() -> None:
     publish_records(a.root, a.run, set(models), a.previous)
     # the 252-episode set leads (the targets are judged on it, as the run's own RESULTS.md does); the 84-episode
     # set, which alone holds the v1-v4 rows, follows with its earlier-recipes table
-    print("next: update RESULTS.meta.json, then\n  nue report results/records_val252.jsonl --set val=results/records.jsonl "
+    print("next: update RESULTS.meta.json, then\n  nue report results/records_val252.jsonl --name val252 --set val=results/records.jsonl "
           "--set val_plain=results/records_val_plain.jsonl --out results/report --results-md RESULTS.md")
 
 
