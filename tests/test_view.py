@@ -94,6 +94,14 @@ def test_replay_reproduces_recorded_poses(tmp_path, box_scene, box_nav, box_rend
     records.write_text(json.dumps(record.to_dict()) + "\n")
     key = f"expert/box_room/{ep.episode_id}"
     assert find_record([records], f"box_room/{ep.episode_id}").episode_id == ep.episode_id
+    # the same run renamed as an earlier recipe's row (its key stays expert/...): the method picks one of the two
+    renamed = tmp_path / "renamed.jsonl"
+    keyed = {**record.to_dict(), "extra": {**record.to_dict()["extra"], "key": key}}  # as nue eval writes it
+    renamed.write_text(json.dumps(keyed) + "\n" + json.dumps({**keyed, "method": "expert_v1"}) + "\n")
+    assert find_record([renamed], f"expert_v1/box_room/{ep.episode_id}").method == "expert_v1"
+    assert find_record([renamed], key).method == "expert"
+    with pytest.raises(DataError, match="2 records"):
+        find_record([renamed], f"box_room/{ep.episode_id}")
 
     rrd = tmp_path / "replay.rrd"
     view(ViewConfig(serve=False, save=str(rrd)),

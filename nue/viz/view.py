@@ -212,7 +212,9 @@ def run_live(viewer: Viewer, src: LiveSource) -> EpisodeRecord:
 
 
 def find_record(paths, key: str) -> EpisodeRecord:
-    """The record whose ``extra['key']`` is ``key`` (or ends in ``/key``); :class:`DataError` if none or several."""
+    """The record whose ``extra['key']`` or ``method/scene/episode_id`` (the method as RESULTS.md names it: records
+    renamed after their run, ``nue_v2``, keep the key ``nue/...`` of that run) is ``key`` or ends in ``/key``; where
+    several match, the ones whose ``method/scene/episode_id`` is ``key``; :class:`DataError` if none or still several."""
 
     hits, n = [], 0
     for path in paths:
@@ -221,12 +223,15 @@ def find_record(paths, key: str) -> EpisodeRecord:
                 continue
             try:
                 d = json.loads(line)
-                k = d.get("extra", {}).get("key") or f"{d['method']}/{d['scene']}/{d['episode_id']}"
+                named = f"{d['method']}/{d['scene']}/{d['episode_id']}"
+                k = d.get("extra", {}).get("key") or named
             except (ValueError, KeyError, TypeError, AttributeError):
                 raise DataError(path, f"line {i} is not an episode record") from None
             n += 1
-            if k == key or k.endswith("/" + key):
-                hits.append((k, d))
+            if any(x == key or x.endswith("/" + key) for x in (k, named)):
+                hits.append((named, d))
+    if len(hits) > 1:
+        hits = [h for h in hits if h[0] == key] or hits
     if len(hits) != 1:
         why = "no record" if not hits else f"{len(hits)} records ({', '.join(k for k, _ in hits[:3])})"
         raise DataError(paths[0] if len(paths) == 1 else "--records", f"{why} with key {key!r} among {n}")
