@@ -1,6 +1,6 @@
 """``nue reproduce``: the quick recipe end to end through the command line, killed after three stages (an
 injected failure) and rerun — no finished stage is redone, and the rest completes to RESULTS.md; a rerun
-with another recipe is refused; the recipes are the documented ones (v5 trains as the shipped checkpoints
+with another recipe is refused; the recipes are the documented ones (v5 trains as the v5 checkpoints
 were trained); the estimate adds up."""
 
 from __future__ import annotations
@@ -154,10 +154,11 @@ def test_v3_is_the_documented_recipe_for_every_model():
 
 
 @pytest.mark.parametrize("model", ["nue", "fr", "nav_a3c", "abl_none"])
-def test_v5_trains_as_the_shipped_checkpoints_were_trained(model):
-    """Every training setting of ``checkpoints/<model>.pt`` (stored in the file) is what the v5 preset gives that
-    model, but for the paths, which belong to the run."""
-    _, header = load_policy(EPISODES.parent / "checkpoints" / f"{model}.pt")
+def test_v5_trains_as_the_v5_checkpoints_were_trained(model):
+    """Every training setting of the v5 checkpoints (``results/v5/checkpoints/<model>_v5.pt``, shipped until the v6
+    run replaced them; stored in the file) is what the v5 preset gives that model, but for the paths, which belong
+    to the run."""
+    _, header = load_policy(EPISODES.parent / "results" / "v5" / "checkpoints" / f"{model}_v5.pt")
     folders = RunFolders(Path("/nowhere"), Path("data/scenes"), Path("episodes"))
     ours = dataclasses.asdict(train_config(get_recipe("v5"), model, folders))
     paths = {"data", "out", "select_episodes", "select_scenes_root"}
