@@ -125,16 +125,16 @@ def report_cmd(
     recs = load_records(*records)
     sets = {}
     for spec in episode_set:
-        name, sep, path = spec.partition("=")
-        if not sep or not name or not path:
+        set_name, sep, path = spec.partition("=")
+        if not sep or not set_name or not path:
             raise ConfigError("--set", f"expected NAME=FILE, got {spec!r}")
-        if name in sets:
-            raise ConfigError("--set", f"episode set {name!r} given twice")
-        sets[name] = load_records(Path(path))
+        if set_name in sets:
+            raise ConfigError("--set", f"episode set {set_name!r} given twice")
+        sets[set_name] = load_records(Path(path))
     paths = {**write_report(recs, out, task=task), **write_coverage_figure(recs, out)}
-    for name, set_recs in sets.items():
-        write_report(set_recs, out / name, task=task)
-        write_coverage_figure(set_recs, out / name)
+    for set_name, set_recs in sets.items():
+        write_report(set_recs, out / set_name, task=task)
+        write_coverage_figure(set_recs, out / set_name)
     typer.echo((out / "table.md").read_text() if (out / "table.md").is_file() else "")
     if results_md:
         meta_path = results_md.parent / f"{results_md.stem}.meta.json"

@@ -260,6 +260,16 @@ def test_results_md_gives_each_further_episode_set_its_own_section(tmp_path, cap
     assert code == 0, err
     assert (tmp_path / "RESULTS.md").read_text() == text
     assert (tmp_path / "rep" / "val_plain" / "table.md").is_file()
+    # --name names the main records (the pooled section would say "`val252` + `val_plain`"); the --set names stay
+    other = [rec(i, d, i < 2, method=m, scene="s1") for m in ("nue", "fr") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
+    files["other"] = tmp_path / "other.jsonl"
+    files["other"].write_text("".join(json.dumps(r.to_dict()) + "\n" for r in other))
+    code, out, err = run_cli(capsys, "report", files["main"], "--name", "val252", "--set", f"val_plain={files['other']}",
+                             "--out", tmp_path / "rep3", "--results-md", tmp_path / "RESULTS.md")
+    assert code == 0, err
+    named = (tmp_path / "RESULTS.md").read_text()
+    assert "## Pooled: `val252` + `val_plain`\n" in named  # other houses (s1): both sets pooled
+    assert named == RM.render_results_md(main, meta, sets={"val_plain": other}, main_name="val252")
     code, out, err = run_cli(capsys, "report", files["main"], "--set", "val_plain", "--out", tmp_path / "rep2")
     assert code == 2 and "NAME=FILE" in err and not (tmp_path / "rep2").exists()
 
