@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pytest
 
-from nue.evaluate.report import load_records
-from nue.evaluate.results_md import render_results_md, results_set_files
+from nue.evaluate.results_md import committed_inputs, render_results_md
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -18,6 +16,6 @@ def test_results_md_regenerates_from_the_records():
     if not results.is_file():
         pytest.skip("no RESULTS.md committed yet")
     assert records.is_file() and meta.is_file(), "RESULTS.md needs results/records.jsonl and RESULTS.meta.json"
-    sets = {name: load_records(path) for name, path in results_set_files(ROOT).items()}
-    text = render_results_md(load_records(records), json.loads(meta.read_text()), sets=sets)
-    assert text == results.read_text()
+    main, meta_d, sets, main_name = committed_inputs(ROOT)
+    assert main_name == "val252" and list(sets) == ["val", "val_plain"]
+    assert render_results_md(main, meta_d, sets=sets, main_name=main_name) == results.read_text()

@@ -173,3 +173,19 @@ def results_set_files(root) -> dict[str, Path]:
 
     base = Path(root) / "results"
     return {name: base / f"records_{name}.jsonl" for name in EPISODE_SETS if (base / f"records_{name}.jsonl").is_file()}
+
+
+def committed_inputs(root) -> tuple[list[EpisodeRecord], dict, dict[str, list[EpisodeRecord]], str]:
+    """What the repository's RESULTS.md is rendered from: ``(main records, meta, further sets, main set name)``.
+    ``results/records.jsonl`` holds the ``val`` episodes and ``results/records_<set>.jsonl`` the others
+    (:func:`results_set_files`); the meta's ``main set`` (e.g. ``val252``) names the set shown first, else ``val``."""
+    import json
+
+    from nue.evaluate.report import load_records
+
+    root = Path(root)
+    meta = json.loads((root / "RESULTS.meta.json").read_text())
+    files = {"val": root / "results" / "records.jsonl", **results_set_files(root)}
+    main = str(meta.get("main set", ""))
+    main_file = files.pop(main or "val")
+    return load_records(main_file), meta, {name: load_records(f) for name, f in files.items()}, main
