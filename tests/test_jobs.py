@@ -96,3 +96,29 @@ def test_killing_the_driver_ends_its_ray_tasks(tmp_path, local_ray):
         driver.wait()
     _poll(lambda: not any(_alive(p) for p in tasks), 60, f"Ray tasks {sorted(p for p in tasks if _alive(p))} to end")
     assert ray.cluster_resources().get("CPU") == 2  # the cluster itself is still there
+
+
+def _job_threads(job) -> int:
+    import torch
+
+    return torch.get_num_threads()
+
+
+def test_every_job_runs_with_one_torch_thread_whatever_the_worker_count():
+    """Records must not depend on --workers: a job run in this process gets one torch thread, as a pool
+    worker's does, and the caller's thread count comes back afterwards."""
+    import torch
+
+    from nue.jobs import Job, run_jobs
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        for workers in (1, 2):
+            seen = {}
+            run_jobs([Job(f"j{i}") for i in range(2)], _job_threads, workers=workers, progress=False,
+                     on_result=lambda job, threads: seen.__setitem__(job.key, threads))
+            assert seen == {"j0": 1, "j1": 1}, (workers, seen)
+            assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
