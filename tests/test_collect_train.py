@@ -229,8 +229,8 @@ def test_precision_defaults_to_auto_and_resolves_by_hardware(monkeypatch):
 
 
 def test_native_bf16_is_read_from_the_cpu_flags_not_from_onednn():
-    """oneDNN reports bf16 on any AVX512 CPU (emulated there, several times slower than fp32, and a compiled NUE step
-    in emulated bf16 produced NaN); only AVX512-BF16 or AMX-BF16 count."""
+    """oneDNN reports bf16 on any AVX512 CPU (emulated there, several times slower than fp32); only AVX512-BF16 or
+    AMX-BF16 count."""
     from nue.train.hardware import cpu_has_native_bf16
 
     avx512 = "flags\t\t: fpu sse2 avx2 avx512f avx512bw avx512vl avx512_vnni\n"

@@ -14,6 +14,7 @@ from nue.errors import ConfigError
 from nue.policy import (
     ABLATION_PRESETS,
     CBAM,
+    ConvBranch,
     MODEL_PRESETS,
     ChannelAttention,
     ModelConfig,
@@ -133,6 +134,41 @@ def test_spatial_attention_uses_max_not_avg_twice():
         sa.conv.weight[0, 1, 1, 1] = 1.0  # centre tap on the second pooled channel only
     x = torch.tensor([[[[1.0, -2.0]], [[3.0, 4.0]]]])  # (1, 2, 1, 2): channel max (3, 4), mean (2, 1)
     assert torch.allclose(sa(x).flatten(), torch.sigmoid(torch.tensor([3.0, 4.0])))
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)  # one inductor compile: ~10-20 s on an idle core
+def test_compiled_cbam_branch_has_finite_gradients_under_bf16_autocast():
+    """f_u's branch (1 channel in, CBAM on a 16-channel grid) compiled under bf16 autocast: with ``amax`` in the
+    attention pools its gradients were NaN from the first step (inductor's amax backward compares a recomputed
+    fp32 input with the bf16-rounded maximum and divides by a tie count of 0), so `nue train --compile` of NUE
+    failed on every bf16 CPU. The compiled gradient must also be eager's up to bf16 rounding."""
+    branch = ConvBranch(1, (8, 16), (6, 8), 64, cbam=True, cbam_reduction=4, cbam_kernel=3)
+    x = torch.rand(4, 1, 45, 60, generator=torch.Generator().manual_seed(0))
+    grads = []
+    for net in (branch, torch.compile(branch, dynamic=False)):
+        branch.zero_grad()
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            y = net(x)
+        y.float().square().mean().backward()
+        grads.append({n: p.grad.clone() for n, p in branch.named_parameters()})
+    eager, compiled = grads
+    assert all(bool(torch.isfinite(g).all()) for g in compiled.values()), [n for n, g in compiled.items()
+                                                                            if not torch.isfinite(g).all()]
+    e, c = (torch.cat([g[n].flatten() for n in eager]) for g in (eager, compiled))
+    assert float((c - e).norm() / e.norm()) < 0.1  # measured 0.015 (single tensors of small norm differ more)
+
+
+def test_attention_max_pools_route_the_gradient_to_one_maximum():
+    """The max pools use max(...).values: a tie's gradient goes to one of the tied entries (amax split it)."""
+    sa = SpatialAttention(kernel=1)
+    with torch.no_grad():
+        sa.conv.weight.copy_(torch.tensor([0.0, 1.0]).reshape(1, 2, 1, 1))  # sigmoid(channel max)
+    x = torch.tensor([[[[2.0]], [[2.0]], [[1.0]]]], requires_grad=True)  # (1, 3, 1, 1): channels 0 and 1 tie
+    sa(x).sum().backward()
+    g = x.grad.flatten()
+    s = torch.sigmoid(torch.tensor(2.0))
+    assert torch.allclose(g.sum(), s * (1 - s)) and int((g != 0).sum()) == 1 and g[2] == 0
 
 
 def test_channel_attention_shape_and_range():

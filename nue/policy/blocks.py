@@ -81,7 +81,7 @@ class ChannelAttention(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:
         avg = self.mlp(x.mean(dim=(2, 3)))
-        mx = self.mlp(x.amax(dim=(2, 3)))
+        mx = self.mlp(x.flatten(2).max(dim=2).values)  # not amax: see SpatialAttention.forward
         return torch.sigmoid(avg + mx)[:, :, None, None]
 
 
@@ -99,7 +99,12 @@ class SpatialAttention(nn.Module):
         self.conv = nn.Conv2d(2, 1, kernel, padding=kernel // 2, bias=False)
 
     def forward(self, x: Tensor) -> Tensor:
-        pooled = torch.cat([x.mean(dim=1, keepdim=True), x.amax(dim=1, keepdim=True)], dim=1)
+        # max(...).values, not amax: the same forward, but amax's backward finds the maxima again by comparing x
+        # with them, and torch.compile under bf16 autocast compares a recomputed fp32 x with the bf16-rounded
+        # maximum; a row then has no maximum, the gradient is 0 / 0 and NUE's training loss NaN from step 2
+        # (torch 2.13.0, CBAM of f_u). max's backward routes through the indices of the forward. Ties get the whole
+        # gradient at one index instead of an even split.
+        pooled = torch.cat([x.mean(dim=1, keepdim=True), x.max(dim=1, keepdim=True).values], dim=1)
         return torch.sigmoid(self.conv(pooled))
 
 
