@@ -13,16 +13,34 @@ RESULTS = Path(__file__).parent / "results"
 CACHE = Path(__file__).resolve().parent.parent / "outputs" / "bench_scenes"
 
 
-def machine() -> dict:
-    """Facts about the run: commit, CPU count, load average, Python and platform."""
+def _git(*args: str) -> str:
     try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                cwd=Path(__file__).parent).stdout.strip()
+        return subprocess.run(["git", *args], capture_output=True, text=True, cwd=Path(__file__).parent).stdout.strip()
     except OSError:
-        commit = ""
+        return ""
+
+
+def cpu_model() -> str:
+    """The CPU's model name from ``/proc/cpuinfo`` ('' where there is none): numbers from two machines differ."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return ""
+
+
+def machine() -> dict:
+    """Facts about the run: commit (``+dirty`` when the code under test has uncommitted changes), CPU model, CPU
+    count, load average, Python and platform."""
+    commit = _git("rev-parse", "--short", "HEAD")
+    if commit and _git("status", "--porcelain", "--", "../nue", ".", ":!results"):
+        commit += "+dirty"
     return {
         "commit": commit,
         "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+        "cpu_model": cpu_model(),
         "cpus": os.cpu_count(),
         "loadavg": os.getloadavg(),
         "python": platform.python_version(),
