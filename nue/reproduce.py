@@ -162,21 +162,16 @@ def train_config(recipe: Recipe, model: str, folders: RunFolders, device: str = 
 
 
 def train_model(job: Job) -> dict:
-    """Worker: train one model (resuming its run folder) with one torch thread; its best checkpoint and steps."""
-    import torch
-
+    """Worker: train one model (resuming its run folder); its best checkpoint and steps. One torch thread, as every
+    job of ``run_jobs``."""
     p: TrainJob = job.payload
-    threads, t0 = torch.get_num_threads(), time.perf_counter()
-    torch.set_num_threads(1)
-    try:
-        if p.dagger is None:
-            res = train(p.train, resume=True, progress=p.progress)
-            out = {"best": str(res.best), "steps": res.step, "train_seconds": res.elapsed_s}
-        else:
-            rounds = run_dagger(p.train, p.collect, p.dagger, p.scenes_root, workers=1, progress=p.progress)
-            out = {"best": str(rounds[-1]["best"]), "rounds": rounds}
-    finally:
-        torch.set_num_threads(threads)
+    t0 = time.perf_counter()
+    if p.dagger is None:
+        res = train(p.train, resume=True, progress=p.progress)
+        out = {"best": str(res.best), "steps": res.step, "train_seconds": res.elapsed_s}
+    else:
+        rounds = run_dagger(p.train, p.collect, p.dagger, p.scenes_root, workers=1, progress=p.progress)
+        out = {"best": str(rounds[-1]["best"]), "rounds": rounds}
     return {**out, "seconds": time.perf_counter() - t0}
 
 

@@ -93,7 +93,7 @@ class TrainConfig:
     """``torch.compile`` (inductor) the training forward and backward: the same arithmetic, fused and rounded
     differently; ~1.5x the samples/s on CPU (``benchmarks/train.py``) for up to ~1 min of compiling; needs a C++
     compiler (CPU) or Triton (CUDA). Evaluation and selection run eager; a resume may switch it. Works in fp32 and
-    bf16 (before CBAM's max pools used ``max(...).values``, NUE compiled under bf16 went NaN at the first step)."""
+    bf16 (before CBAM's max pools used ``max(...).values``, NUE compiled under bf16 had NaN gradients at the first step)."""
     map_dropout: float = 0.0
     """Probability per sample that its memory maps (I_u, I_cog) are replaced by those of another sample of
     the batch, so the policy cannot rely on the maps alone (e.g. for obstacle avoidance); 0 = off."""
