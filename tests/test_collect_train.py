@@ -494,3 +494,41 @@ def test_subsample_keeps_the_first_episodes_of_each_bin():
 
     eps = [SimpleNamespace(difficulty=d, episode_id=f"{d}_{i}") for d in ("easy", "medium") for i in range(3)]
     assert [e.episode_id for e in _first_per_bin(eps, 2)] == ["easy_0", "easy_1", "medium_0", "medium_1"]
+
+
+@pytest.mark.parametrize("name", ["nue", "fr", "nav_a3c"])
+def test_bf16_training_step_is_unchanged_by_casting_the_images_first(name, monkeypatch):
+    """Under bf16, ``forward_loss`` hands the models rgbd and I_cog already in bfloat16 (half the bytes through
+    the concatenations in front of the first convolutions; ~10% more NUE samples/s): the loss and every
+    gradient must be bit for bit those of autocast casting them itself."""
+    from nue.policy import PolicyInput, build_model
+    from nue.policy.config import get_model_config
+    from nue.sim.task import get_task
+    from nue.train.bc import TrainConfig, class_weights, forward_loss
+    from nue.train.dataset import Batch
+
+    cfg = get_model_config(name).for_task(get_task("paper"))
+    g = torch.Generator().manual_seed(0)
+    t, b = 2, 3
+    inp = PolicyInput(rgbd=torch.rand(t, b, 4, *cfg.frame_size, generator=g),
+                      goal=torch.rand(t, b, 3, *cfg.goal_size, generator=g),
+                      i_u=torch.rand(t, b, 1, *cfg.map_size, generator=g) if cfg.uses_i_u else None,
+                      i_cog=torch.randn(t, b, 64, *cfg.map_size, generator=g) if cfg.uses_i_cog else None)
+    batch = Batch(inp, torch.randint(0, 3, (t, b), generator=g), torch.rand(t, b, generator=g) * 6 - 3)
+    reset = torch.zeros(t, b, dtype=torch.bool)
+    reset[0] = True
+    torch.manual_seed(0)
+    model = build_model(cfg)
+    cpu = torch.device("cpu")
+    results = []
+    for cast in (True, False):
+        if not cast:
+            monkeypatch.setattr(PolicyInput, "with_image_dtype", lambda self, dtype: self)
+        model.zero_grad()
+        loss = forward_loss(model.forward_sequence, model, batch, reset, class_weights(np.ones(3), 0.5),
+                            TrainConfig(precision="bf16"), cpu)[0]
+        loss.backward()
+        results.append((loss.detach(), {n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None}))
+    (l1, g1), (l2, g2) = results
+    assert torch.equal(l1, l2) and g1.keys() == g2.keys() and len(g1) > 10
+    assert [n for n in g1 if not torch.equal(g1[n], g2[n])] == []

@@ -38,7 +38,7 @@ class _FrameGoalPolicy(PolicyModel):
         goal = inp.goal
         if goal.shape[-2:] != inp.rgbd.shape[-2:]:
             goal = F.interpolate(goal, size=tuple(inp.rgbd.shape[-2:]), mode="area")
-        return self.encoder(torch.cat([inp.rgbd, goal], dim=1))
+        return self.encoder(torch.cat([inp.rgbd, goal.to(inp.rgbd.dtype)], dim=1))
 
     def _heads(self, feature_dim: int, config: ModelConfig) -> None:
         s = config.negative_slope

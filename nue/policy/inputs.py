@@ -49,6 +49,17 @@ class PolicyInput:
         """The same batch on another device."""
         return self._map(lambda t: t.to(device))
 
+    def with_image_dtype(self, dtype: torch.dtype) -> "PolicyInput":
+        """``rgbd`` and ``i_cog`` cast to ``dtype``; ``goal`` and ``i_u`` keep theirs.
+
+        For training under autocast: both go straight into a concatenation and a convolution (the models cast
+        a resampled goal to their dtype, :meth:`nue.policy.nue_model.NUEPolicy.features`), which autocast
+        would cast to its dtype anyway, so the network computes the same numbers while the concatenations and
+        strided copies in front of the first convolutions move half the bytes. ``goal`` is area-resampled and
+        ``i_u`` goes through ``log1p`` first, in their own precision.
+        """
+        return dataclasses.replace(self, rgbd=self.rgbd.to(dtype), i_cog=None if self.i_cog is None else self.i_cog.to(dtype))
+
     @property
     def batch_size(self) -> int:
         return int(self.rgbd.shape[0])

@@ -78,12 +78,12 @@ class NUEPolicy(PolicyModel):
         goal = inp.goal
         if goal.shape[-2:] != i_cog.shape[-2:]:
             goal = F.interpolate(goal, size=tuple(i_cog.shape[-2:]), mode="area")
-        f_cog = self.f_cog(torch.cat([i_cog, goal], dim=1))
+        f_cog = self.f_cog(torch.cat([i_cog, goal.to(i_cog.dtype)], dim=1))
         f_u = None
         if self.f_u is not None:
             assert inp.i_u is not None
             f_u = self.f_u(torch.log1p(inp.i_u.clamp_min(0.0) / self.config.uncertainty_scale))
-        frame = torch.cat([inp.rgbd, inp.goal], dim=1) if self.config.goal_in_perception else inp.rgbd
+        frame = torch.cat([inp.rgbd, inp.goal.to(inp.rgbd.dtype)], dim=1) if self.config.goal_in_perception else inp.rgbd
         return f_cog, f_u, self.f_p(frame)
 
     def forward(self, inp: PolicyInput, state: State = None, reset_mask: Tensor | None = None) -> PolicyOutput:

@@ -135,8 +135,10 @@ BUDGET_CLOCKS = ("wall", "cpu")
 def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainConfig, device: torch.device):
     """One training forward: (total, cross-entropy, angle L1 or None). Under ``bf16`` the network runs in
     bfloat16 autocast and the loss is taken on its outputs cast back to float32."""
-    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=resolve_precision(cfg.precision, device) == "bf16"):
-        out = net(batch.inp, model.initial_state(reset_t.shape[1], device), reset_t)
+    bf16 = resolve_precision(cfg.precision, device) == "bf16"
+    inp = batch.inp.with_image_dtype(torch.bfloat16) if bf16 else batch.inp  # the same numbers, half the bytes
+    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
+        out = net(inp, model.initial_state(reset_t.shape[1], device), reset_t)
     out = PolicyOutput(out.logits.float(), None if out.aux_angle is None else out.aux_angle.float(), out.state)
     return bc_loss(out, batch, weights, cfg.aux_weight)
 
