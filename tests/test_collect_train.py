@@ -520,6 +520,8 @@ def test_bf16_training_step_is_unchanged_by_casting_the_images_first(name, monke
     torch.manual_seed(0)
     model = build_model(cfg)
     cpu = torch.device("cpu")
+    cast_inp = inp.with_image_dtype(torch.bfloat16)  # what the bf16 path hands the model
+    assert cast_inp.rgbd.dtype == torch.bfloat16 and cast_inp.goal.dtype == torch.float32
     results = []
     for cast in (True, False):
         if not cast:
