@@ -9,13 +9,15 @@ recording stream has up to two sinks: a gRPC server the page reads while the epi
 A live run is :func:`nue.rollout.run_episode` with an ``on_step`` callback that logs each step (the
 maps the policy saw, before the memory learns the frame). A replay reads the poses of a record's
 ``extra['trajectory']`` and re-renders the frames there; the policy does not run, and the memory is
-re-run along the recorded poses only when asked (``ReplaySource.maps``).
+re-run along the recorded poses only when asked (``ReplaySource.maps``). A replay finds the record's episode
+file itself (:func:`find_episode`): the episode set whose file holds an episode with the record's digest.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import socket
 import time
 from dataclasses import dataclass
@@ -33,7 +35,7 @@ from nue.scene.generator import SPLITS, ensure_house
 from nue.scene.navgrid import NavGrid
 from nue.scene.scene import Scene
 from nue.sim.env import ImageNavEnv, make_env
-from nue.sim.episodes import load_episodes
+from nue.sim.episodes import Episode, load_episodes
 from nue.sim.record import EpisodeRecord, RecordFormatError
 from nue.sim.task import get_task
 from nue.train.checkpoint import load_agent, load_header, load_memory
@@ -89,8 +91,9 @@ class ReplaySource:
     """Where the record's scene folder is (validation houses are generated there if missing)."""
     episodes: str | None = None
     """Episode file holding the record's episode; default ``episodes_dir/<scene>.json``."""
-    episodes_dir: str = "episodes/val"
-    """Folder of per-house episode files, used when ``episodes`` is None."""
+    episodes_dir: str | None = None
+    """Folder of per-house episode files, used when ``episodes`` is None; None: the folder under ``episodes/``
+    whose ``<scene>.json`` holds the record's episode (:func:`find_episode`)."""
     task: str = "paper"
     """Task preset the record was made with."""
     maps: bool = False
@@ -241,6 +244,59 @@ def find_record(paths, key: str) -> EpisodeRecord:
         raise DataError(paths[0] if len(paths) == 1 else "--records", f"{key}: {exc}") from None
 
 
+def episode_files(record_files, scene: str, roots=(Path("episodes"),)) -> list[Path]:
+    """The files ``<root>/<set>/<scene>.json`` that may hold a record's episode, in the order :func:`find_episode`
+    tries them: the sets a record file's name ends in first (``records_val252.jsonl``, ``val252+swap.jsonl`` ->
+    ``val252``; ``records_val_plain.jsonl`` -> ``val_plain``), then ``val``, then the other sets by name. ``roots``: the folders of episode sets (default ``episodes/``), and the
+    ``episodes/`` folder of the repository holding each record file (``results/x.jsonl`` -> ``episodes/``)."""
+
+    folders: list[Path] = []
+    for root in [*roots, *(_repository_episodes(f) for f in record_files)]:
+        if root is not None and root.is_dir() and all(root.resolve() != f.resolve() for f in folders):
+            folders.append(root)
+    sets = [d for root in folders for d in sorted(root.iterdir()) if (d / f"{scene}.json").is_file()]
+    stems = [Path(f).name.split(".")[0].split("+")[0] for f in record_files]
+
+    def named(d: Path) -> bool:
+        return any(re.search(rf"(^|_){re.escape(d.name)}$", stem) for stem in stems)
+
+    ordered = sorted(sets, key=lambda d: (not named(d), d.name != "val", d.name))
+    return [d / f"{scene}.json" for d in ordered]
+
+
+def _repository_episodes(record_file) -> Path | None:
+    """``<repo>/episodes`` of the nearest folder above ``record_file`` that has one, else None."""
+    for parent in Path(record_file).resolve().parents:
+        if (parent / "episodes").is_dir():
+            return parent / "episodes"
+    return None
+
+
+def find_episode(record: EpisodeRecord, record_files, scene: Scene, task, nav: NavGrid,
+                 roots=(Path("episodes"),)) -> Episode:
+    """The episode a record was made on, from the episode sets under ``roots`` (:func:`episode_files`): the first
+    file whose episode with the record's id has the record's digest (``extra['settings']['episode']``,
+    :meth:`nue.evaluate.eval_job.RunSettings.episode_digest`); a record without a digest (``nue expert``, older
+    records) takes the first file holding its id. :class:`EpisodeError` naming the files tried if none does."""
+
+    from nue.evaluate.eval_job import RunSettings
+
+    digest = (record.extra.get("settings") or {}).get("episode")
+    tried = episode_files(record_files, record.scene, roots)
+    for path in tried:
+        try:
+            episodes = load_episodes(path, scene, task, navgrid=nav)
+        except EpisodeError:
+            continue  # another task's or another house's file: not this record's
+        for e in episodes:
+            if e.episode_id == record.episode_id and (digest is None or RunSettings.episode_digest(e) == digest):
+                return e
+    what = f"episode {record.episode_id!r}" + (f" with digest {digest}" if digest else "")
+    where = ", ".join(str(p) for p in tried) or f"no {record.scene}.json under {', '.join(str(r) for r in roots)}"
+    raise EpisodeError(record.scene, f"no episode file holds the record's {what} (tried {where}); "
+                                     "give --episodes FILE or --episodes-dir DIR")
+
+
 def run_replay(viewer: Viewer, src: ReplaySource) -> np.ndarray:
     """Log the recorded episode at its recorded poses; returns those poses (T + 1, 3)."""
 
@@ -255,8 +311,11 @@ def run_replay(viewer: Viewer, src: ReplaySource) -> np.ndarray:
     scene = Scene.load(folder)
     task = _task(src.task)
     nav = NavGrid.from_scene(scene)
-    ep_file = src.episodes or str(Path(src.episodes_dir) / f"{record.scene}.json")
-    episode = pick_episode(load_episodes(ep_file, scene, task, navgrid=nav), record.episode_id, ep_file)
+    if src.episodes or src.episodes_dir:
+        ep_file = src.episodes or str(Path(src.episodes_dir) / f"{record.scene}.json")
+        episode = pick_episode(load_episodes(ep_file, scene, task, navgrid=nav), record.episode_id, ep_file)
+    else:
+        episode = find_episode(record, src.records, scene, task, nav)
     env = ImageNavEnv(scene, task, [episode], navgrid=nav)
     env.reset(seed=0, options={"episode": episode})
     log = viewer.logger(env)
