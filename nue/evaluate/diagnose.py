@@ -7,7 +7,7 @@ Per method (records grouped by canonical method key), pooled over its episodes:
   records made before trajectories existed count too;
 * P(forward | blocked): over the steps t + 1 whose step t was a blocked forward move, the fraction
   choosing MOVE_FORWARD again. The simulator slides a blocked move along the obstacle, so most blocked
-  moves still advance (v3 NUE: median 0.21 m of a 0.25 m step); P(forward | stuck) counts only the
+  moves still advance (a trained NUE's: median 0.21 m of a 0.25 m step); P(forward | stuck) counts only the
   blocked moves that advanced less than ``STUCK_FRACTION`` of the forward step (from the poses), where
   another forward move is the wall-pushing the diagnostic is after; P(blocked again | blocked): over the
   same steps t + 1, the fraction whose move was blocked too (a forward move into the obstacle again,

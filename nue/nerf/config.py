@@ -116,7 +116,7 @@ MEMORY_PRESETS: dict[str, MemoryConfig] = {
     # of 1024 rays per step (2x the authors' rays and 20x their gradient steps per step); the issue's
     # "200 iterations of 10,800 rays" would cost ~200 s per step on this CPU.
     "reference": MemoryConfig(name="reference", train_rays=1024, iters_per_update=20),
-    # Our default (benchmarks/README.md, "NeRF memory", has the measurements behind each choice): a
+    # Our default (docs/history/benchmarks.md, "NeRF memory", has the measurements behind each choice): a
     # voxel-grid field (local parameters: never-sampled space keeps near-zero density, so with
     # T_{N+1} beta_max^2 it renders as uncertain), 8 samples in +-0.3 m around the observed surface,
     # 2 iterations of 512 rays per step (a quarter from the newest frame), maps at 45 x 60.

@@ -88,12 +88,12 @@ class TrainConfig:
     """``auto`` (default): ``bf16`` where the device runs bfloat16 natively (CPU with AVX512-BF16/AMX, CUDA
     with bf16), else ``fp32``; ``bf16``: forward and backward under bfloat16 autocast (weights, optimiser and
     loss stay float32), about 2x the samples/s on CPUs with AVX512-BF16 (``make bench``) and the same
-    held-out accuracy step for step (fp32 vs bf16 curves in ``benchmarks/README.md``); ``fp32``: no autocast."""
+    held-out accuracy step for step (fp32 vs bf16 curves in ``docs/history/benchmarks.md``); ``fp32``: no autocast."""
     compile: bool = False
     """``torch.compile`` (inductor) the training forward and backward: the same arithmetic, fused and rounded
     differently; ~1.5x the samples/s on CPU (``benchmarks/train.py``) for up to ~1 min of compiling; needs a C++
     compiler (CPU) or Triton (CUDA). Evaluation and selection run eager; a resume may switch it. Works in fp32 and
-    bf16 (before CBAM's max pools used ``max(...).values``, NUE compiled under bf16 had NaN gradients at the first step)."""
+    bf16."""
     map_dropout: float = 0.0
     """Probability per sample that its memory maps (I_u, I_cog) are replaced by those of another sample of
     the batch, so the policy cannot rely on the maps alone (e.g. for obstacle avoidance); 0 = off."""
