@@ -121,14 +121,15 @@ def test_a_replay_finds_its_episode_file_by_digest(tmp_path, box_scene, box_nav,
     _, theirs = episode_file
     other = generate_episodes(box_scene, "paper", EpisodeGenConfig(per_bin=1), seed=5, navgrid=box_nav,
                               renderer=box_renderer)[0]
-    assert other.episode_id == theirs.episode_id and RunSettings.episode_digest(other) != RunSettings.episode_digest(theirs)
+    digest = RunSettings.episode_digest
+    assert other.episode_id == theirs.episode_id and digest(other) != digest(theirs)
     root = tmp_path / "episodes"
     save_episodes(root / "val" / "box_room.json", [other], "paper")
     save_episodes(root / "set2" / "box_room.json", [theirs], "paper")
     task = dataclasses.replace(get_task("paper"), max_steps=2)
     env = ImageNavEnv(box_scene, task, [theirs], navgrid=box_nav, renderer=box_renderer)
     plain = run_episode(env, ExpertAgent(), episode=theirs, method="expert")
-    settings = {"episode": RunSettings.episode_digest(theirs)}
+    settings = {"episode": digest(theirs)}
     record = dataclasses.replace(plain, extra={**plain.extra, "settings": settings})
     for name, first in (("records.jsonl", "val"), ("records_set2.jsonl", "set2"), ("set2+swap.jsonl", "set2")):
         files = episode_files([tmp_path / name], "box_room", roots=(root,))

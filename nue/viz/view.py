@@ -247,8 +247,9 @@ def find_record(paths, key: str) -> EpisodeRecord:
 def episode_files(record_files, scene: str, roots=(Path("episodes"),)) -> list[Path]:
     """The files ``<root>/<set>/<scene>.json`` that may hold a record's episode, in the order :func:`find_episode`
     tries them: the sets a record file's name ends in first (``records_val252.jsonl``, ``val252+swap.jsonl`` ->
-    ``val252``; ``records_val_plain.jsonl`` -> ``val_plain``), then ``val``, then the other sets by name. ``roots``: the folders of episode sets (default ``episodes/``), and the
-    ``episodes/`` folder of the repository holding each record file (``results/x.jsonl`` -> ``episodes/``)."""
+    ``val252``; ``records_val_plain.jsonl`` -> ``val_plain``), then ``val``, then the other sets by name. The sets
+    are the folders under ``roots`` (default ``episodes/``) and under the ``episodes/`` folder nearest above each
+    record file (``results/x.jsonl`` -> ``episodes/`` of its repository)."""
 
     folders: list[Path] = []
     for root in [*roots, *(_repository_episodes(f) for f in record_files)]:
