@@ -232,8 +232,11 @@ def format_paired_markdown(diffs: Sequence[PairedDiff]) -> str:
 # --- files --------------------------------------------------------------------------------------
 def load_records(*paths) -> list[EpisodeRecord]:
     """Records from JSON-lines files (one ``EpisodeRecord.to_dict()`` per line; blank lines skipped),
-    checked by :func:`nue.evaluate.diagnose.read_records` (a bad file or line raises DataError)."""
-    return read_records(*paths)
+    checked by :func:`nue.evaluate.diagnose.read_records` (a bad file or line raises DataError), with the hand-off
+    files beside them attached (:func:`nue.evaluate.handoff_job.load_records_with_handoff`)."""
+    from nue.evaluate.handoff_job import load_records_with_handoff
+
+    return load_records_with_handoff(*paths)
 
 
 NOTES = (
