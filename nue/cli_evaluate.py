@@ -136,6 +136,8 @@ def report_cmd(
                                           "report folder OUT/NAME; repeatable."),
     name: str = typer.Option("", help="The episode set of RECORDS (e.g. val252), as RESULTS.md's pooled section names "
                              "it; default \"Table I's episodes\"."),
+    explore: list[str] = typer.Option([], help="NAME=FILE: `nue explore` records from set NAME's starts, a section of "
+                                      "RESULTS.md; repeatable."),
 ):
     """Table I (SR / SPL / DTS per difficulty, CIs, paired differences to NUE) and coverage."""
     import json
@@ -158,6 +160,12 @@ def report_cmd(
         if set_name in sets:
             raise ConfigError("--set", f"episode set {set_name!r} given twice")
         sets[set_name] = load_records(Path(path))
+    explored = {}
+    for spec in explore:
+        set_name, sep, path = spec.partition("=")
+        if not sep or not set_name or not path:
+            raise ConfigError("--explore", f"expected NAME=FILE, got {spec!r}")
+        explored[set_name] = load_records(Path(path))
     paths = {**write_report(recs, out, task=task), **write_coverage_figure(recs, out)}
     for set_name, set_recs in sets.items():
         write_report(set_recs, out / set_name, task=task)
@@ -167,7 +175,7 @@ def report_cmd(
         meta_path = results_md.parent / f"{results_md.stem}.meta.json"
         meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {
             "command": command, "date": "", "commit": "", "machine": f"{platform.machine()}, {os.cpu_count()} CPUs"}
-        results_md.write_text(render_results_md(recs, meta, task, sets=sets, main_name=name))
+        results_md.write_text(render_results_md(recs, meta, task, sets=sets, main_name=name, explore=explored))
         typer.echo(f"wrote {results_md}")
     typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
 
