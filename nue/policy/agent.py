@@ -3,7 +3,7 @@
 :class:`ExpertAgent` (geodesic or exploring expert), :class:`PolicyAgent` (a trained network: the same
 ``prepare_input`` as in training turns the raw observation and the NeRF maps into its input; the
 recurrent state of Nav-A3C is carried across steps and reset per episode), :class:`MixedAgent`
-(DAgger's mix) and :class:`NoisyAgent` (DART noise injection).
+(DAgger's mix), :class:`NoisyAgent` (DART noise injection) and :class:`RandomAgent` (a random walk).
 """
 
 from __future__ import annotations
@@ -56,6 +56,18 @@ class ExpertAgent:
     def executed(self, action: int) -> None:
         """Told by a wrapper (noise injection) which action was actually executed this step."""
         self.expert.executed(action)
+
+
+class RandomAgent:
+    """A random walk: each step a move drawn uniformly from the task's actions except STOP, seeded per episode
+    (the exploration benchmark's lower reference)."""
+
+    def reset(self, env, obs, seed: int = 0) -> None:
+        self.moves = np.array([i for i, a in enumerate(env.task.actions) if a != "STOP"], dtype=np.int64)
+        self.rng = np.random.default_rng(np.random.SeedSequence([seed, 4]))
+
+    def act(self, obs, maps) -> int:
+        return int(self.rng.choice(self.moves))
 
 
 class PolicyAgent:
