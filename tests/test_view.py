@@ -143,8 +143,8 @@ def test_a_replay_finds_its_episode_file_by_digest(tmp_path, box_scene, box_nav,
 
 
 def test_seen_floor_dots_stay_on_the_floor_map(tmp_path, box_scene, box_nav, box_renderer, episode_file):
-    """The coverage measure counts cells behind walls (a wall's bottom 5 cm pass as floor); the viewer draws only
-    the seen cells on the floor map."""
+    """The coverage measure counts cells at and just behind the foot of walls (a wall's bottom 5 cm pass as floor);
+    the viewer draws only the seen cells on the floor map."""
     _, ep = episode_file
     task = dataclasses.replace(get_task("paper"), max_steps=12)
     env = ImageNavEnv(box_scene, task, [ep], navgrid=box_nav, renderer=box_renderer)

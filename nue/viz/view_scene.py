@@ -11,10 +11,12 @@ Images: ``frames/depth``, ``goal/photo``, ``memory/i_u``, ``memory/i_cog`` (a fi
 the 64 channels to RGB), ``memory/rgb``. Scalars: ``metrics/seen_m2`` (seen area by the evaluation's coverage
 measure, :func:`nue.sim.seen.seen_floor_cells`, as in a record's ``extra['coverage']``), ``metrics/geodesic_m``.
 
-Why the dots are masked: the coverage measure counts a cell as seen when its centre projects onto a pixel whose
-depth point lies within ``CoverageConfig.floor_tolerance`` (5 cm) of the floor, and a wall's bottom 5 cm are such
-pixels, so cells up to ~0.5 m behind a wall (seen from 5 m) count as seen. Drawn as they are, they would show as
-dots outside the house; the viewer draws only the cells on the floor map and leaves the measure as it is.
+Why the dots are masked: the coverage measure counts a cell as seen when a depth point within
+``CoverageConfig.floor_tolerance`` (5 cm) of the floor lands in it, which the bottom 5 cm of a wall do, and when its
+centre projects onto such a pixel at a depth within a tolerance that grows with the distance
+(``CoverageConfig.occlusion_rows``), which cells up to ~0.25 m behind a wall's foot seen from a few metres pass.
+Drawn as they are, these cells would show as dots on and just outside the walls; the viewer draws only the cells on
+the floor map and leaves the measure as it is.
 """
 
 from __future__ import annotations
