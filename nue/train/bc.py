@@ -88,7 +88,8 @@ class TrainConfig:
     """``auto`` (default): ``bf16`` where the device runs bfloat16 natively (CPU with AVX512-BF16/AMX, CUDA
     with bf16), else ``fp32``; ``bf16``: forward and backward under bfloat16 autocast (weights, optimiser and
     loss stay float32), about 2x the samples/s on CPUs with AVX512-BF16 (``make bench``) and the same
-    held-out accuracy step for step (fp32 vs bf16 curves in ``docs/history/benchmarks.md``); ``fp32``: no autocast."""
+    held-out accuracy step for step (fp32 vs bf16 curves: the benchmarks history in ``docs/history/``); ``fp32``: no
+    autocast."""
     compile: bool = False
     """``torch.compile`` (inductor) the training forward and backward: the same arithmetic, fused and rounded
     differently; ~1.5x the samples/s on CPU (``benchmarks/train.py``) for up to ~1 min of compiling; needs a C++
