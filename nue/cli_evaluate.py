@@ -28,6 +28,16 @@ def _echo_episode_checks(skipped, snapped: dict | None = None, source=None) -> N
         typer.echo(f"{source}: snapped to navigable cells: {', '.join(parts)}")
 
 
+DROP_HELP = ("A records file with a key recorded twice is refused; with this, keep the first record of each key and "
+             "say how many were dropped.")
+
+
+def _echo_dropped(path: Path, n: int) -> None:
+    from nue.evaluate.record_keys import dropped_message
+
+    typer.echo(dropped_message(path, n), err=True)
+
+
 def expert_cmd(
     scene: Path = typer.Option(..., help="Scene folder."),
     episodes: Path = typer.Option(..., help="Episode file (ours or the authors' format)."),
@@ -93,7 +103,7 @@ def eval_cmd(
     skipped: list = []
     run_eval(method, out, cfg, workers=workers, ray_address=ray_address, skipped=skipped)
     _echo_episode_checks(skipped)
-    records = load_records(out)
+    records = load_records(out, drop_duplicates=True, on_dropped=_echo_dropped)  # duplicates of an older writer
     for name in sorted({r.method for r in records}):
         typer.echo(f"## {name}\n" + format_table(aggregate([r for r in records if r.method == name])))
 
@@ -109,6 +119,7 @@ def report_cmd(
                                           "report folder OUT/NAME; repeatable."),
     name: str = typer.Option("", help="The episode set of RECORDS (e.g. val252), as RESULTS.md's pooled section names "
                              "it; default \"Table I's episodes\"."),
+    drop_duplicates: bool = typer.Option(False, help=DROP_HELP),
 ):
     """Table I (SR / SPL / DTS per difficulty, CIs, paired differences to NUE) and coverage."""
     import json
@@ -122,7 +133,8 @@ def report_cmd(
     check_output_dir(out, "the report folder")
     if results_md:
         check_output_file(results_md)
-    recs = load_records(*records)
+    read = {"drop_duplicates": drop_duplicates, "on_dropped": _echo_dropped}
+    recs = load_records(*records, **read)
     sets = {}
     for spec in episode_set:
         set_name, sep, path = spec.partition("=")
@@ -130,7 +142,7 @@ def report_cmd(
             raise ConfigError("--set", f"expected NAME=FILE, got {spec!r}")
         if set_name in sets:
             raise ConfigError("--set", f"episode set {set_name!r} given twice")
-        sets[set_name] = load_records(Path(path))
+        sets[set_name] = load_records(Path(path), **read)
     paths = {**write_report(recs, out, task=task), **write_coverage_figure(recs, out)}
     for set_name, set_recs in sets.items():
         write_report(set_recs, out / set_name, task=task)
@@ -157,6 +169,7 @@ def diagnose_cmd(
     probe_cog: bool = typer.Option(False, help="Probe: add the mean norm of I_cog to the features."),
     seed: int = typer.Option(0, help="Seed of the other-step maps, the probe's subsample and its shuffled control."),
     out: Optional[Path] = typer.Option(None, help="Also write everything as JSON here."),
+    drop_duplicates: bool = typer.Option(False, help=DROP_HELP),
 ):
     """Closed-loop diagnostics from records; map controls and a previous-action probe from demonstrations."""
     import json
@@ -174,7 +187,8 @@ def diagnose_cmd(
         check_output_file(out)
     result: dict = {}
     if records:
-        diags = D.record_diagnostics(D.read_records(*records), task, method)
+        recs = D.read_records(*records, drop_duplicates=drop_duplicates, on_dropped=_echo_dropped)
+        diags = D.record_diagnostics(recs, task, method)
         result["records"] = diags
         typer.echo("## Closed-loop diagnostics\n\n" + D.format_record_diagnostics(diags))
     if data is not None:

@@ -2,8 +2,8 @@
 
 Every method runs the same episodes with the same per-episode seeds, through the shared agent loop,
 with its checkpoint's online NeRF memory (fixed initial weights from the checkpoint). Records are
-appended one line at a time (a single ``write`` + ``fsync``); rerunning the command skips the
-episodes already recorded, so a killed evaluation resumes. Local worker processes or Ray tasks, as
+appended one line at a time (a single ``write`` + ``fsync``) by the one process holding the file's lock;
+rerunning the command skips the episodes already recorded, so a killed evaluation resumes. Local worker processes or Ray tasks, as
 in ``nue collect``. ``swap_maps`` feeds a policy the memory maps recorded in a *different* episode of
 the same house (a control that shows whether the memory is used). Each episode of each method travels
 to its worker as an :class:`~nue.evaluate.eval_job.EvalJob`.
@@ -22,6 +22,7 @@ from nue.errors import CheckpointError, ConfigError, DataError
 from nue.evaluate.coverage import CoverageTracker
 from nue.evaluate.eval_job import EvalJob, RunSettings
 from nue.jobs import Job, episode_seed, run_jobs, worker_cached
+from nue.output_lock import hold_output
 from nue.policy.agent import ExpertAgent
 from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
@@ -227,14 +228,17 @@ def append_record(path: Path, record: dict) -> None:
 
 def run_eval(methods: list[str], out, cfg: EvalConfig, workers: int = 1, ray_address: str | None = None,
              progress: bool = True, skipped: list | None = None) -> Path:
-    """Evaluate ``methods`` (checkpoint paths, ``name=path`` or ``expert``); records appended to ``out``.
+    """Evaluate ``methods`` (checkpoint paths, ``name=path`` or ``expert``); records appended to ``out``, which
+    this process holds for the whole run (:func:`~nue.output_lock.hold_output`: a second writer stops at once).
     Episodes left out by ``cfg.skip_invalid`` are appended to ``skipped``."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    jobs = plan_eval(methods, cfg, skipped)
-    done = check_resumable(out, jobs)
-    run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
-             is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="eval", progress=progress)
+    with hold_output(out):
+        jobs = plan_eval(methods, cfg, skipped)
+        done = check_resumable(out, jobs)
+        run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
+                 is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="eval",
+                 progress=progress)
     return out
 
 
