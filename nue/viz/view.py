@@ -37,7 +37,7 @@ from nue.sim.record import EpisodeRecord, RecordFormatError
 from nue.sim.task import get_task
 from nue.train.checkpoint import load_agent, load_header, load_memory
 from nue.viz.view_scene import GOAL_COLOUR, TRAJECTORY_COLOUR, EpisodeLogger, SceneViewConfig, blueprint
-from nue.viz.view_server import (LOOPBACK, PageServer, check_port, grpc_url, is_loopback, page_url,
+from nue.viz.view_server import (PageServer, check_port, grpc_url, is_loopback, page_url,
                                   url_host)
 from nue.viz.view_shot import find_chromium, has_colour, screenshot_page
 
@@ -46,7 +46,7 @@ from nue.viz.view_shot import find_chromium, has_colour, screenshot_page
 class ViewConfig:
     """Where the viewer serves and what it writes."""
 
-    host: str = LOOPBACK
+    host: str = "127.0.0.1"
     """Interface the page and its data stream listen on: 127.0.0.1 = this machine only; an address of another
     interface, or 0.0.0.0 for every one, makes the run visible to anyone who can reach that interface."""
     port: int = 9090
