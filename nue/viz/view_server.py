@@ -93,16 +93,21 @@ def rerun_program() -> Path:
     return path
 
 
-def _die_with_parent() -> None:  # pragma: no cover - runs in the child between fork and exec
-    """Ask Linux to send the page server SIGTERM when nue ends."""
+def _parent_death_signal():
+    """A function for the child between fork and exec that asks Linux to send it SIGTERM when its parent ends
+    (``prctl(PR_SET_PDEATHSIG)``), resolved here so that the child imports and loads nothing; None elsewhere."""
+    if not sys.platform.startswith("linux"):
+        return None
     import ctypes
 
-    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
+    prctl = ctypes.CDLL(None, use_errno=True).prctl
+    return lambda: prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
 
 
 class PageServer:
     """Rerun's web viewer on ``host:port`` (a ``rerun`` process), whose page reads the data stream at ``data_url``;
-    ready when constructed (:class:`ConfigError` if it does not come up within ``timeout`` seconds)."""
+    ready when constructed (:class:`ConfigError` if it does not come up within ``timeout`` seconds). Start it from
+    the thread that lives as long as it should (Linux ties the process to the thread that started it)."""
 
     def __init__(self, host: str, port: int, data_url: str, timeout: float = 60.0):
         self.host, self.port = host, port
@@ -110,7 +115,7 @@ class PageServer:
         self.proc = subprocess.Popen(
             [str(rerun_program()), "--serve-web", "--bind", host, "--web-viewer-port", str(port), data_url],
             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=self._log,
-            preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
+            preexec_fn=_parent_death_signal())
         atexit.register(self.close)
         self._wait_ready(timeout)
 
