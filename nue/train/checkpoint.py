@@ -7,9 +7,9 @@ format ``nue-checkpoint/1``) holds its :meth:`~PolicyHeader.to_dict` next to the
 state, all plain data: dicts, lists, tuples, strings, numbers, booleans, None and tensors. Saving is atomic
 (temporary file + rename) and refuses anything else; loading uses ``torch.load(..., weights_only=True)``, which
 rebuilds only such data and refuses a file asking for any other object, so a checkpoint never runs code.
-``load_header`` reads the description, ``load_policy`` rebuilds the network; ``check_compatible`` refuses a task/memory preset or scene set
-that differs from the stored one; ``load_agent`` gives the agent and memory of the shared loop (eval,
-DAgger collection, the demo), ``load_memory`` the memory alone (``nue view``'s replay).
+``load_header`` reads the description, ``load_policy`` rebuilds the network; ``check_compatible`` refuses a
+task/memory preset or scene set that differs from the stored one; ``load_agent`` gives the agent and memory of the
+shared loop (eval, DAgger collection, the demo), ``load_memory`` the memory alone (``nue view``'s replay).
 """
 
 from __future__ import annotations
