@@ -3,7 +3,8 @@
 The viewer is Rerun's web viewer, served by the ``rerun-sdk`` wheel itself (no network needed). One
 recording stream has up to two sinks: a gRPC server the page reads while the episode runs
 (``ViewConfig.grpc_port``; the page itself on ``ViewConfig.port``) and an ``.rrd`` file that opens later
-(``rerun rec.rrd``, or ``rerun --web-viewer rec.rrd`` for a browser). What is drawn:
+(``rerun rec.rrd``, or ``rerun --web-viewer rec.rrd`` for a browser). Both servers listen on
+``ViewConfig.host``, the loopback unless asked otherwise (:mod:`nue.viz.view_server`). What is drawn:
 :mod:`nue.viz.view_scene`; screenshots: :mod:`nue.viz.view_shot`.
 
 A live run is :func:`nue.rollout.run_episode` with an ``on_step`` callback that logs each step (the
@@ -37,8 +38,7 @@ from nue.sim.record import EpisodeRecord, RecordFormatError
 from nue.sim.task import get_task
 from nue.train.checkpoint import load_agent, load_header, load_memory
 from nue.viz.view_scene import GOAL_COLOUR, TRAJECTORY_COLOUR, EpisodeLogger, SceneViewConfig, blueprint
-from nue.viz.view_server import (PageServer, check_port, grpc_url, is_loopback, page_url,
-                                  url_host)
+from nue.viz.view_server import PageServer, check_port, grpc_url, is_loopback, page_url, url_host
 from nue.viz.view_shot import find_chromium, has_colour, screenshot_page
 
 
