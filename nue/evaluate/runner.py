@@ -26,6 +26,8 @@ from nue.evaluate.coverage import CoverageTracker, cell_area, explorable_cells
 from nue.evaluate.eval_job import EvalJob, RunSettings
 from nue.evaluate.handoff import HANDOFF_KEY, GoalSightTracker, geodesic_along, handoff
 from nue.jobs import Job, episode_seed, run_jobs, worker_cached
+from nue.nerf.config import get_memory
+from nue.nerf.online import OnlineNeRF
 from nue.policy.agent import ExpertAgent, RandomAgent
 from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
@@ -37,7 +39,7 @@ from nue.sim.explorer import ExplorerConfig, ExploringExpert
 from nue.sim.task import get_task
 from nue.train.checkpoint import PolicyHeader, check_compatible, load_agent, load_header
 
-EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore", "random": "random"}
+EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore", "expert-uncertainty": "uncertainty", "random": "random"}
 """Method specs that run an expert (or the random walk) instead of a checkpoint -> ``ExpertAgent(kind=...)``
 (``random``: :class:`~nue.policy.agent.RandomAgent`)."""
 
@@ -285,6 +287,9 @@ def eval_episode(job: Job) -> dict:
     extra = {"key": job.key, "seed": p.seed, "checkpoint": p.checkpoint, "settings": p.settings.to_dict()}
     if p.checkpoint is None:
         agent, memory = _expert_agent(p), None
+        if p.expert == "uncertainty":  # it reads its own memory's panorama (default initial weights)
+            memory = worker_cached(("memory", "fast_pano", p.device, env.task.name), lambda: OnlineNeRF(
+                get_memory("fast_pano"), env.task.camera, device=p.device))
     else:
         agent, memory = _policy(p, env)
         extra["git_commit"] = agent.git_commit
