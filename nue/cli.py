@@ -15,7 +15,7 @@ import typer
 
 from nue import cli_args as A
 from nue.cli_config import ConfigOptions, Opt, config_command
-from nue.cli_evaluate import diagnose_cmd, eval_cmd, expert_cmd, report_cmd
+from nue.cli_evaluate import diagnose_cmd, eval_cmd, expert_cmd, explore_cmd, report_cmd
 from nue.cli_learn import collect_cmd, convert_cmd, dagger_cmd, select_cmd, train_cmd
 from nue.cli_reproduce import make_set_cmd, reproduce_cmd
 from nue.outputs import check_output_dir, check_output_file
@@ -117,6 +117,7 @@ app.command("dagger")(dagger_cmd)
 app.command("select")(select_cmd)
 app.command("reproduce")(reproduce_cmd)
 app.command("eval")(eval_cmd)
+app.command("explore")(explore_cmd)
 app.command("report")(report_cmd)
 app.command("diagnose")(diagnose_cmd)
 
