@@ -122,7 +122,8 @@ def test_a_lock_file_naming_a_gone_process_is_taken_over_and_the_lock_is_reentra
 
 
 def test_every_resumable_writer_refuses_an_output_in_use(tmp_path, episodes_dir):
-    """collect, train, dagger, select and reproduce stop with the one-line error before touching their output."""
+    """collect, train, dagger, select, reproduce, convert and explore stop with the one-line error before touching
+    their output."""
 
     out = tmp_path / "busy"
     commands = {
@@ -132,6 +133,7 @@ def test_every_resumable_writer_refuses_an_output_in_use(tmp_path, episodes_dir)
         "select": ["select", out],
         "reproduce": ["reproduce", "--quick", "--out", out],
         "convert": ["convert", tmp_path / "no_data", "--out", out],
+        "explore": ["explore", "-c", "random", "--out", out, "--episodes-dir", episodes_dir, "--scenes-root", FIXTURES],
     }
     holder = _holder(out)
     try:
