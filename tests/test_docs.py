@@ -23,8 +23,6 @@ LINK_DOCS = [*COMMAND_DOCS, *sorted((ROOT / "docs" / "history").glob("*.md")), R
              *sorted((ROOT / "results").glob("*/README.md"))]
 GROUPS = ("scenes", "episodes")
 """Commands with subcommands (``nue scenes generate``)."""
-PENDING = {"docs/trust.md"}
-"""Linked pages that another change of issue 41 adds; a link to one is accepted until it exists."""
 
 
 def bash_lines(path: Path) -> list[str]:
@@ -130,8 +128,6 @@ def test_relative_links_point_at_files(path):
             continue
         file, _, anchor = target.partition("#")
         dest = (path.parent / file).resolve() if file else path
-        if str(dest.relative_to(ROOT)) in PENDING and not dest.exists():
-            continue
         assert dest.exists(), f"{path.relative_to(ROOT)}: link to {target}: no such file"
         if anchor and dest.suffix == ".md":
             headings = {_slug(h) for h in re.findall(r"^#+ (.+)$", dest.read_text(), flags=re.M)}

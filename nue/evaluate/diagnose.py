@@ -32,6 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from nue.errors import DataError
+from nue.evaluate.record_keys import OnDropped, UniqueKeys
 from nue.evaluate.table import by_method, canonical_method, method_label
 from nue.sim.record import EpisodeRecord, RecordFormatError, Trajectory
 from nue.sim.task import TaskConfig, get_task
@@ -184,10 +185,13 @@ def record_diagnostics(records: Sequence[EpisodeRecord], task: str | TaskConfig 
     return out
 
 
-def read_records(*paths) -> list[EpisodeRecord]:
-    """Records from JSON-lines files, checked: a bad line or trajectory raises :class:`DataError` naming file and line."""
+def read_records(*paths, drop_duplicates: bool = False, on_dropped: OnDropped | None = None) -> list[EpisodeRecord]:
+    """Records from JSON-lines files, checked: a bad line or trajectory raises :class:`DataError` naming file and line,
+    and so does a key recorded twice in one file (:mod:`nue.evaluate.record_keys`), unless ``drop_duplicates``: then
+    the first record of each key is kept and ``on_dropped(file, n)`` told how many were left out."""
     out = []
     for p in paths:
+        unique = UniqueKeys(p, drop_duplicates)
         try:
             lines = Path(p).read_text().splitlines()
         except (OSError, UnicodeDecodeError) as exc:
@@ -215,7 +219,9 @@ def read_records(*paths) -> list[EpisodeRecord]:
                 raise DataError(p, f"line {i}: not an episode record ({exc})") from None
             except (ValueError, KeyError, binascii.Error) as exc:
                 raise DataError(p, f"line {i}: bad trajectory ({exc})") from None
-            out.append(r)
+            if unique.first(d, i):
+                out.append(r)
+        unique.report(on_dropped)
     return out
 
 

@@ -27,6 +27,7 @@ from nue.evaluate.coverage import COVERAGE_KEY, pad_curves
 from nue.evaluate.eval_job import EvalJob, RunSettings
 from nue.evaluate.stats import paired_bootstrap
 from nue.jobs import Job, episode_seed, run_jobs
+from nue.output_lock import hold_output
 from nue.sim.episodes import Episode, read_episodes
 from nue.sim.record import EpisodeRecord
 
@@ -113,16 +114,18 @@ def plan_explore(methods: list[str], cfg: ExploreConfig) -> list[Job]:
 def run_explore(methods: list[str], out, cfg: ExploreConfig, workers: int = 1, ray_address: str | None = None,
                 progress: bool = True) -> Path:
     """Run the benchmark for ``methods`` (checkpoints, ``name=path``, ``expert-explore``, ``random``); records
-    appended to ``out`` (resumes; refuses records of other settings)."""
+    appended to ``out`` (resumes; refuses records of other settings), which this process holds meanwhile
+    (:func:`~nue.output_lock.hold_output`: a second writer stops at once)."""
     from nue.evaluate.runner import append_record, check_resumable, eval_episode
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    jobs = plan_explore(methods, cfg)
-    done = check_resumable(out, jobs)
-    run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
-             is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="explore",
-             progress=progress)
+    with hold_output(out):
+        jobs = plan_explore(methods, cfg)
+        done = check_resumable(out, jobs)
+        run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
+                 is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="explore",
+                 progress=progress)
     return out
 
 

@@ -2,7 +2,7 @@
 came, and where a failed episode was lost.
 
 An episode splits in two phases at the step the goal is first *in view* (the exploring expert's own switch,
-:func:`goal_in_view`: the goal's grid cell is seen as floor in the current depth frame and the robot is at most
+:func:`nue.sim.seen.goal_in_view`: the goal's grid cell is seen as floor in the current depth frame and the robot is at most
 ``view_range`` = 3 m from the goal): steps before it are *search*, steps from it to the end *exploitation*. A
 failed episode (every failure here is a time-out) is one of
 
@@ -26,8 +26,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from nue.sim.seen import CoverageConfig, GridLike, seen_floor_cells
-from nue.sim.task import CameraConfig
+from nue.sim.seen import CoverageConfig, goal_in_view
 
 HANDOFF_KEY = "handoff"
 """Key of ``EpisodeRecord.extra`` (and of a hand-off file's lines) holding a :class:`Handoff`'s dict."""
@@ -112,15 +111,6 @@ def handoff(geodesic: Sequence[float], first_seen_step: int | None, success: boo
                    steps_near=int(near.size), search_steps=found, exploit_steps=steps - found, outcome=outcome)
 
 
-def goal_in_view(depth: np.ndarray, pose, goal_cell: tuple[int, int], goal_xy, camera: CameraConfig, grid: GridLike,
-                 floor_z: float, config: HandoffConfig = HandoffConfig()) -> bool:
-    """Whether the goal is in view from ``pose`` (x, y, yaw): the robot is at most ``view_range`` from ``goal_xy``
-    and ``depth`` (H, W[, 1]) metres sees the floor of ``goal_cell`` (row, col) — the exploring expert's test."""
-    if float(np.hypot(pose[0] - goal_xy[0], pose[1] - goal_xy[1])) > config.view_range:
-        return False
-    return bool(seen_floor_cells(depth, pose, camera, grid, floor_z, config.seen)[goal_cell])
-
-
 class GoalSightTracker:
     """An ``on_step`` callback of :func:`nue.rollout.run_episode` finding the first step the goal is in view.
 
@@ -141,7 +131,7 @@ class GoalSightTracker:
             self._goal = np.asarray(env.nav_goal_xy, dtype=np.float64)
             self._cell = tuple(int(v) for v in env.navgrid.cell_of(self._goal))
         if goal_in_view(step.obs["depth"], step.obs["pose"], self._cell, self._goal, env.task.camera, env.navgrid,
-                        env.floor_z, self.config):
+                        env.floor_z, self.config.view_range, self.config.seen):
             self.first_seen_step = int(step.t)
 
 
@@ -165,7 +155,8 @@ def handoff_of_record(record, env, config: HandoffConfig = HandoffConfig()) -> H
     close = np.flatnonzero(np.hypot(poses[:-1, 0] - goal[0], poses[:-1, 1] - goal[1]) <= config.view_range)
     for t in close:  # observations exist for steps 0..T-1 (the last pose is never observed by the agent)
         _, depth = env.renderer.render(poses[t], env.floor_z)
-        if goal_in_view(depth, poses[t], cell, goal, env.task.camera, env.navgrid, env.floor_z, config):
+        if goal_in_view(depth, poses[t], cell, goal, env.task.camera, env.navgrid, env.floor_z, config.view_range,
+                        config.seen):
             first_seen = int(t)
             break
     return handoff(geodesic_along(poses, env.navgrid, env.goal_field), first_seen, record.success, config)

@@ -28,6 +28,7 @@ from scipy.stats import kendalltau
 from nue.evaluate import coverage as cov
 from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, read_records, record_diagnostics
 from nue.evaluate.metrics import dts, spl, success, unreachable_end
+from nue.evaluate.record_keys import OnDropped
 from nue.evaluate.stats import paired_bootstrap, wilson_interval  # noqa: F401  (re-exported)
 from nue.evaluate.table import (  # noqa: F401  (re-exported)
     DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, method_label, order_methods,
@@ -230,13 +231,14 @@ def format_paired_markdown(diffs: Sequence[PairedDiff]) -> str:
 
 
 # --- files --------------------------------------------------------------------------------------
-def load_records(*paths) -> list[EpisodeRecord]:
+def load_records(*paths, drop_duplicates: bool = False, on_dropped: OnDropped | None = None) -> list[EpisodeRecord]:
     """Records from JSON-lines files (one ``EpisodeRecord.to_dict()`` per line; blank lines skipped),
-    checked by :func:`nue.evaluate.diagnose.read_records` (a bad file or line raises DataError), with the hand-off
-    files beside them attached (:func:`nue.evaluate.handoff_job.load_records_with_handoff`)."""
+    checked by :func:`nue.evaluate.diagnose.read_records` (a bad file or line, or a key recorded twice in a file,
+    raises DataError; ``drop_duplicates`` keeps the first record of each key instead), with the hand-off files
+    beside them attached (:func:`nue.evaluate.handoff_job.load_records_with_handoff`)."""
     from nue.evaluate.handoff_job import load_records_with_handoff
 
-    return load_records_with_handoff(*paths)
+    return load_records_with_handoff(*paths, drop_duplicates=drop_duplicates, on_dropped=on_dropped)
 
 
 NOTES = (

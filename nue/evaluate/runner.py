@@ -2,8 +2,8 @@
 
 Every method runs the same episodes with the same per-episode seeds, through the shared agent loop,
 with its checkpoint's online NeRF memory (fixed initial weights from the checkpoint). Records are
-appended one line at a time (a single ``write`` + ``fsync``); rerunning the command skips the
-episodes already recorded, so a killed evaluation resumes. Local worker processes or Ray tasks, as
+appended one line at a time (a single ``write`` + ``fsync``) by the one process holding the file's lock;
+rerunning the command skips the episodes already recorded, so a killed evaluation resumes. Local worker processes or Ray tasks, as
 in ``nue collect``. ``swap_maps`` feeds a policy the memory maps recorded in a *different* episode of
 the same house (a control that shows whether the memory is used). Each episode of each method travels
 to its worker as an :class:`~nue.evaluate.eval_job.EvalJob`.
@@ -26,6 +26,9 @@ from nue.evaluate.coverage import CoverageTracker, cell_area, explorable_cells
 from nue.evaluate.eval_job import EvalJob, RunSettings
 from nue.evaluate.handoff import HANDOFF_KEY, GoalSightTracker, geodesic_along, handoff
 from nue.jobs import Job, episode_seed, run_jobs, worker_cached
+from nue.nerf.config import get_memory
+from nue.nerf.online import OnlineNeRF
+from nue.output_lock import hold_output
 from nue.policy.agent import ExpertAgent, RandomAgent
 from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
@@ -37,7 +40,7 @@ from nue.sim.explorer import ExplorerConfig, ExploringExpert
 from nue.sim.task import get_task
 from nue.train.checkpoint import PolicyHeader, check_compatible, load_agent, load_header
 
-EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore", "random": "random"}
+EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore", "expert-uncertainty": "uncertainty", "random": "random"}
 """Method specs that run an expert (or the random walk) instead of a checkpoint -> ``ExpertAgent(kind=...)``
 (``random``: :class:`~nue.policy.agent.RandomAgent`)."""
 
@@ -238,14 +241,17 @@ def append_record(path: Path, record: dict) -> None:
 
 def run_eval(methods: list[str], out, cfg: EvalConfig, workers: int = 1, ray_address: str | None = None,
              progress: bool = True, skipped: list | None = None) -> Path:
-    """Evaluate ``methods`` (checkpoint paths, ``name=path`` or ``expert``); records appended to ``out``.
+    """Evaluate ``methods`` (checkpoint paths, ``name=path`` or ``expert``); records appended to ``out``, which
+    this process holds for the whole run (:func:`~nue.output_lock.hold_output`: a second writer stops at once).
     Episodes left out by ``cfg.skip_invalid`` are appended to ``skipped``."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    jobs = plan_eval(methods, cfg, skipped)
-    done = check_resumable(out, jobs)
-    run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
-             is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="eval", progress=progress)
+    with hold_output(out):
+        jobs = plan_eval(methods, cfg, skipped)
+        done = check_resumable(out, jobs)
+        run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
+                 is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="eval",
+                 progress=progress)
     return out
 
 
@@ -285,6 +291,9 @@ def eval_episode(job: Job) -> dict:
     extra = {"key": job.key, "seed": p.seed, "checkpoint": p.checkpoint, "settings": p.settings.to_dict()}
     if p.checkpoint is None:
         agent, memory = _expert_agent(p), None
+        if p.expert == "uncertainty":  # it reads its own memory's panorama (default initial weights)
+            memory = worker_cached(("memory", "fast_pano", p.device, env.task.name), lambda: OnlineNeRF(
+                get_memory("fast_pano"), env.task.camera, device=p.device))
     else:
         agent, memory = _policy(p, env)
         extra["git_commit"] = agent.git_commit

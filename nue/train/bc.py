@@ -11,6 +11,7 @@ Multi-process data parallel: launch with ``torchrun``; ranks split each batch (g
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -25,6 +26,7 @@ from tqdm import tqdm
 
 from nue.errors import CheckpointError, ConfigError, DataError
 from nue.jobs import fail_point
+from nue.output_lock import hold_output
 from nue.policy import build_model
 from nue.policy.base import PolicyOutput, angle_l1_loss, wrap_angle_t
 from nue.policy.config import get_model_config
@@ -230,7 +232,12 @@ FAIL_AT_ENV = "NUE_FAIL_AT_STEP"
 
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> TrainResult:
-    """Run (or resume from ``out/last.pt``) behaviour cloning."""
+    """Run (or resume from ``out/last.pt``) behaviour cloning; rank 0 holds the run folder (one writer per output)."""
+    with hold_output(cfg.out) if _dist()[0] == 0 else contextlib.nullcontext():
+        return _train(cfg, resume, progress)
+
+
+def _train(cfg: TrainConfig, resume: bool, progress: bool) -> TrainResult:
     rank, world = _dist()
     device = torch.device(cfg.device)
     out_dir = Path(cfg.out)
