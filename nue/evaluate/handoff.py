@@ -234,3 +234,58 @@ def format_handoff_markdown(summaries: Mapping[str, HandoffSummary], labels: Map
                      f"{f(s.median_search_success)} / {f(s.median_exploit_success)} | "
                      f"{f(s.median_steps_near_lost)}, {f(s.median_closest_lost, '.2f')} m |")
     return "\n".join(lines) + "\n"
+
+
+@dataclass(frozen=True)
+class OutcomeDiff:
+    """A method's rate of one failure class minus the reference's, over the episodes both ran (paired)."""
+
+    method: str
+    outcome: str
+    n: int
+    """Episodes both ran."""
+    diff: float
+    """Mean of (reference has the class) - (method has it), as a fraction: below 0 = the reference has fewer."""
+    lo: float
+    hi: float
+    """95% paired-bootstrap interval of ``diff`` (10,000 resamples, seed 0)."""
+
+
+def outcome_differences(records: Sequence, reference: str = "nue", classes: Sequence[str] = ("never_near", "found_then_lost"),
+                        method_of=lambda r: r.method) -> list[OutcomeDiff]:
+    """Per method other than ``reference`` (sorted) and class, the paired difference of the class's rate
+    (reference minus method), matched on (scene, episode id) over the records carrying a hand-off."""
+    from nue.evaluate.stats import paired_bootstrap
+
+    by: dict[str, dict] = {}
+    for r in records:
+        h = record_handoff(r)
+        if h is not None:
+            by.setdefault(method_of(r), {})[(r.scene, r.episode_id)] = h.outcome
+    ref = by.get(reference)
+    if not ref:
+        return []
+    out = []
+    for m in sorted(k for k in by if k != reference):
+        keys = sorted(set(ref) & set(by[m]))
+        if not keys:
+            continue
+        d = np.array([[(ref[k] == c) - (by[m][k] == c) for c in classes] for k in keys], dtype=np.float64)
+        mean, lo, hi = paired_bootstrap(d)
+        out += [OutcomeDiff(m, c, len(keys), float(mean[i]), float(lo[i]), float(hi[i])) for i, c in enumerate(classes)]
+    return out
+
+
+def format_outcome_differences(diffs: Sequence[OutcomeDiff], labels: Mapping[str, str] | None = None,
+                               reference: str = "NUE") -> str:
+    """Markdown table of :func:`outcome_differences`: one row per method, one column per class, in points."""
+    classes = list(dict.fromkeys(d.outcome for d in diffs))
+    names = {"never_near": "never near", "found_then_lost": "found, then lost", "near_unseen": "near, unseen"}
+    lines = ["| method | episodes | " + " | ".join(f"{reference} − method: {names.get(c, c)} (points, 95%)" for c in classes)
+             + " |", "|" + "---|" * (len(classes) + 2)]
+    for m in dict.fromkeys(d.method for d in diffs):
+        row = {d.outcome: d for d in diffs if d.method == m}
+        n = next(iter(row.values())).n
+        lines.append(f"| {(labels or {}).get(m, m)} | {n} | " + " | ".join(
+            f"{100 * row[c].diff:+.1f} [{100 * row[c].lo:+.1f}, {100 * row[c].hi:+.1f}]" for c in classes) + " |")
+    return "\n".join(lines) + "\n"

@@ -276,13 +276,23 @@ HANDOFF_NOTES = (
 def handoff_markdown(records: Sequence[EpisodeRecord]) -> str:
     """The hand-off table (:func:`nue.evaluate.handoff.format_handoff_markdown`) per method of the table (canonical
     names, table order) with its notes; '' when no record carries a hand-off."""
-    from nue.evaluate.handoff import format_handoff_markdown, handoff_summaries
+    from nue.evaluate.handoff import format_handoff_markdown, format_outcome_differences, handoff_summaries, outcome_differences
 
-    summaries = handoff_summaries(records, method_of=lambda r: canonical_method(r.method))
+    key = lambda r: canonical_method(r.method)  # noqa: E731
+    summaries = handoff_summaries(records, method_of=key)
     if not summaries:
         return ""
     ordered = {k: summaries[k] for k in order_methods(summaries)}
-    return f"{format_handoff_markdown(ordered, {k: method_label(k) for k in ordered})}\n{HANDOFF_NOTES}\n"
+    labels = {k: method_label(k) for k in ordered}
+    text = f"{format_handoff_markdown(ordered, labels)}\n{HANDOFF_NOTES}\n"
+    diffs = outcome_differences(records, method_of=key)
+    if diffs:
+        rank = {k: i for i, k in enumerate(order_methods({d.method for d in diffs}))}
+        diffs = sorted(diffs, key=lambda d: rank[d.method])
+        text += ("\nPaired differences of the failure classes to NUE (the share of episodes, NUE's minus the method's; "
+                 "below 0 = NUE fails that way less often; 95% paired bootstrap over the episodes both ran):\n\n"
+                 f"{format_outcome_differences(diffs, labels)}")
+    return text
 
 
 def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = True, task: str = "paper") -> dict[str, Path]:
