@@ -70,18 +70,13 @@ def _subset(episodes: Sequence[Episode], per_bin: int) -> list[int]:
 
 def plan_explore(methods: list[str], cfg: ExploreConfig) -> list[Job]:
     """One job per (start, method); keys ``<method>/<house>/<episode id>``."""
-    from nue.evaluate.runner import EXPERT_METHODS, checked_checkpoint, episode_files, house_folder, parse_method
+    from nue.evaluate.runner import EXPERT_METHODS, episode_files, house_folder, parse_methods
     from nue.scene.scene import Scene
     from nue.train.checkpoint import check_compatible
 
     if cfg.steps <= 0:
         raise ConfigError("--steps", "must be positive")
-    parsed = [parse_method(m) for m in methods]
-    names = [n for n, _ in parsed]
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise ConfigError("--checkpoint", f"method name {twice[0]!r} given twice; name them apart with name=path")
-    checked = {ckpt: checked_checkpoint(ckpt, cfg.task) for _, ckpt in parsed if ckpt is not None}
+    parsed, checked = parse_methods(methods, cfg.task)
     houses = []
     for f in episode_files(cfg.episodes_dir):
         folder = house_folder(f.name.removesuffix(".gz").removesuffix(".json"), cfg.scenes_root, cfg.split)

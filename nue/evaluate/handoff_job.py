@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -165,14 +164,8 @@ def _run_handoff(records: Sequence[EpisodeRecord], out: Path, episodes_dir, scen
     have = read_handoff_file(out)
     jobs = plan_handoff([r for r in records if record_key(r) not in have], episodes_dir, scenes_root, task)
 
-    def write(job: Job, lines: list[dict]) -> None:
-        data = "".join(json.dumps(line, sort_keys=True) + "\n" for line in lines).encode()
-        fd = os.open(out, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-        try:
-            os.write(fd, data)
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+    from nue.evaluate.runner import append_lines
 
-    run_jobs(jobs, handoff_job, on_result=write, workers=workers, desc="hand-off", progress=progress)
+    run_jobs(jobs, handoff_job, on_result=lambda job, lines: append_lines(out, lines), workers=workers,
+             desc="hand-off", progress=progress)
     return out

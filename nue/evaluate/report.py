@@ -26,7 +26,7 @@ import numpy as np
 from scipy.stats import kendalltau
 
 from nue.evaluate import coverage as cov
-from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, read_records, record_diagnostics
+from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, record_diagnostics
 from nue.evaluate.metrics import dts, spl, success, unreachable_end
 from nue.evaluate.record_keys import OnDropped
 from nue.evaluate.stats import paired_bootstrap, wilson_interval  # noqa: F401  (re-exported)

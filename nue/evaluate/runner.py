@@ -99,12 +99,7 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
     """One job per (episode, method). Every episode is validated on its house's navigation grid; with
     ``cfg.skip_invalid`` invalid ones are left out and appended to ``skipped``
     (:class:`~nue.sim.episodes.InvalidEpisode`), else all of a file are named in one error."""
-    parsed = [parse_method(m) for m in methods]
-    names = [name for name, _ in parsed]
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise ConfigError("--checkpoint", f"method name {twice[0]!r} given twice; name them apart with name=path")
-    checked = {ckpt: checked_checkpoint(ckpt, cfg.task) for _, ckpt in parsed if ckpt is not None}
+    parsed, checked = parse_methods(methods, cfg.task)
     digests = {ckpt: sha for ckpt, (_, sha) in checked.items()}
     swap = "+swap" if cfg.swap_maps else ""
     files = episode_files(cfg.episodes_dir)
@@ -141,6 +136,17 @@ def house_folder(name: str, scenes_root, split: str = "val") -> Path:
         return ensure_house(prefix if prefix in SPLITS else split, int(index), scenes_root)
     except (ValueError, IndexError):
         return Path(scenes_root) / name
+
+
+def parse_methods(methods: list[str], task: str) -> tuple[list[tuple[str, str | None]], dict[str, tuple[PolicyHeader, str]]]:
+    """``(name, checkpoint or None)`` per method spec (:func:`parse_method`; a name given twice is refused) and
+    :func:`checked_checkpoint` of each checkpoint."""
+    parsed = [parse_method(m) for m in methods]
+    names = [name for name, _ in parsed]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ConfigError("--checkpoint", f"method name {twice[0]!r} given twice; name them apart with name=path")
+    return parsed, {ckpt: checked_checkpoint(ckpt, task) for _, ckpt in parsed if ckpt is not None}
 
 
 def checked_checkpoint(path: str, task: str) -> tuple[PolicyHeader, str]:
@@ -230,7 +236,12 @@ def done_keys(path: Path) -> set[str]:
 
 def append_record(path: Path, record: dict) -> None:
     """Append one JSON line with a single write and fsync it."""
-    line = (json.dumps(record, sort_keys=True) + "\n").encode()
+    append_lines(path, [record])
+
+
+def append_lines(path: Path, dicts: list[dict]) -> None:
+    """Append one JSON line per dict with a single write and fsync them (all or, killed mid-write, a torn last line)."""
+    line = "".join(json.dumps(d, sort_keys=True) + "\n" for d in dicts).encode()
     fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
     try:
         os.write(fd, line)
