@@ -82,7 +82,7 @@ def expert_cmd(
 
 EVAL = ConfigOptions(
     "nue.evaluate.runner:EvalConfig", Opt("episodes_dir", path=True), Opt("scenes_root", path=True), "task", "seed",
-    Opt("device", check=A.device), "swap_maps", Opt("max_episodes", check=A.non_negative),
+    Opt("device", check=A.device), "swap_maps", Opt("max_episodes", check=A.non_negative), Opt("per_bin", check=A.non_negative),
     Opt("max_steps", check=A.non_negative), "skip_invalid")
 
 

@@ -157,6 +157,10 @@ def test_diagnose_prints_the_handoff(tmp_path, two_houses):
     res = nue_here("diagnose", "--records", out)
     assert res.returncode == 0, res.stderr
     assert "hand-off" in res.stdout and "| expert | 2 | 0 | 0 | 0 | 0 |" in res.stdout
+    per_bin = tmp_path / "per_bin.jsonl"  # --per-bin 1 keeps the first episode of each bin: both of them here
+    assert nue_here("eval", "-c", "random", "--out", per_bin, "--episodes-dir", eps_dir, "--scenes-root", root,
+                    "--max-steps", 5, "--per-bin", 1).returncode == 0
+    assert len(per_bin.read_text().splitlines()) == 4
     bad = nue_here("diagnose", "--records", out, "--handoff")
     assert bad.returncode == 2 and "--episodes-dir" in bad.stderr
 

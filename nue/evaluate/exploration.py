@@ -28,7 +28,7 @@ from nue.evaluate.eval_job import EvalJob, RunSettings
 from nue.evaluate.stats import paired_bootstrap
 from nue.jobs import Job, episode_seed, run_jobs
 from nue.output_lock import hold_output
-from nue.sim.episodes import Episode, read_episodes
+from nue.sim.episodes import read_episodes
 from nue.sim.record import EpisodeRecord
 
 REPORT_STEPS = (100, 200, 500, 800)
@@ -57,20 +57,9 @@ class ExploreConfig:
     """Use only the first N episodes of each difficulty bin of each house (0 = all)."""
 
 
-def _subset(episodes: Sequence[Episode], per_bin: int) -> list[int]:
-    """Indices of the first ``per_bin`` episodes of each difficulty bin (all for 0), in file order."""
-    taken: dict[str, int] = {}
-    out = []
-    for i, ep in enumerate(episodes):
-        if not per_bin or taken.get(ep.difficulty, 0) < per_bin:
-            taken[ep.difficulty] = taken.get(ep.difficulty, 0) + 1
-            out.append(i)
-    return out
-
-
 def plan_explore(methods: list[str], cfg: ExploreConfig) -> list[Job]:
     """One job per (start, method); keys ``<method>/<house>/<episode id>``."""
-    from nue.evaluate.runner import EXPERT_METHODS, episode_files, house_folder, parse_methods
+    from nue.evaluate.runner import EXPERT_METHODS, episode_files, first_per_bin, house_folder, parse_methods
     from nue.scene.scene import Scene
     from nue.train.checkpoint import check_compatible
 
@@ -89,7 +78,7 @@ def plan_explore(methods: list[str], cfg: ExploreConfig) -> list[Job]:
     jobs = []
     for h, (folder, scene, episodes) in enumerate(houses):
         g_folder, g_scene, g_eps = houses[(h + 1) % len(houses)]
-        for i in _subset(episodes, cfg.per_bin):
+        for i in first_per_bin(episodes, cfg.per_bin):
             ep, goal = episodes[i], g_eps[i % len(g_eps)]
             goal_from = f"{g_scene.content_hash}/{RunSettings.episode_digest(goal)}"
             for method, ckpt in parsed:

@@ -68,6 +68,8 @@ class EvalConfig:
     """Feed the policy the maps of another episode of the same house (control experiment)."""
     max_episodes: int = 0
     """Use only the first N episodes of each house (0 = all)."""
+    per_bin: int = 0
+    """Use only the first N episodes of each difficulty bin of each house (0 = all); applied before ``max_episodes``."""
     max_steps: int = 0
     """Override the preset's step limit (0 = keep it); for smoke runs only — records are not comparable."""
     skip_invalid: bool = False
@@ -113,6 +115,8 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
         if skipped is not None:
             skipped.extend(loaded.skipped)
         eps = loaded.episodes
+        if cfg.per_bin:
+            eps = [eps[i] for i in first_per_bin(eps, cfg.per_bin)]
         if cfg.max_episodes:
             eps = eps[: cfg.max_episodes]
         for i, ep in enumerate(eps):
@@ -125,6 +129,17 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
                     seed=episode_seed(cfg.seed, scene.name, ep.episode_id), device=cfg.device, coverage=cfg.coverage,
                     max_steps=cfg.max_steps, settings=settings)))
     return jobs
+
+
+def first_per_bin(episodes, per_bin: int) -> list[int]:
+    """Indices of the first ``per_bin`` episodes of each difficulty bin (all for 0), in file order."""
+    taken: dict[str, int] = {}
+    out = []
+    for i, ep in enumerate(episodes):
+        if not per_bin or taken.get(ep.difficulty, 0) < per_bin:
+            taken[ep.difficulty] = taken.get(ep.difficulty, 0) + 1
+            out.append(i)
+    return out
 
 
 def house_folder(name: str, scenes_root, split: str = "val") -> Path:
