@@ -120,7 +120,7 @@ def explore_cmd(
                                      "or 'random'; repeatable."),
     out: Path = typer.Option(Path("results/explore.jsonl"), help="JSON-lines file the records are appended to."),
     cfg: ExploreConfig = EXPLORE,
-    reference: str = typer.Option("abl_fu", help="Method the others' seen area is divided by in the summary."),
+    reference: str = typer.Option("abl_at_cbam", help="Method (default: the ablation without f_u) the others' seen area is divided by in the summary."),
     workers: int = WORKERS,
     ray_address: Optional[str] = RAY_ADDRESS,
 ):

@@ -150,7 +150,7 @@ def _ratio_ci(a: np.ndarray, b: np.ndarray, n_boot: int = 10_000, seed: int = 0)
     return float(a.mean() / max(b.mean(), 1e-12)), float(lo), float(hi)
 
 
-def exploration_summary(records: Sequence[EpisodeRecord], reference: str = "abl_fu",
+def exploration_summary(records: Sequence[EpisodeRecord], reference: str = "abl_at_cbam",
                         steps: Sequence[int] = REPORT_STEPS) -> list[ExplorationRow]:
     """Per method (sorted), the :class:`ExplorationRow` at ``steps`` within the runs' length, and at that length."""
     length = max((len(r.extra.get(COVERAGE_KEY) or []) for r in records), default=0)
@@ -182,7 +182,7 @@ def exploration_summary(records: Sequence[EpisodeRecord], reference: str = "abl_
     return rows
 
 
-def format_exploration_markdown(rows: Sequence[ExplorationRow], reference: str = "abl_fu",
+def format_exploration_markdown(rows: Sequence[ExplorationRow], reference: str = "abl_at_cbam",
                                 labels: Mapping[str, str] | None = None) -> str:
     """Markdown table: per method and report step the mean seen area (95% interval), the mean fraction of the
     explorable area, and the ratio to ``reference`` (95% paired bootstrap)."""

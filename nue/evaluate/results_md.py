@@ -108,7 +108,7 @@ def pooled_section_markdown(sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
     return "\n".join(parts + _comparison_parts(rows, paper, pooled, ", pooled"))
 
 
-def exploration_section_markdown(name: str, records: Sequence[EpisodeRecord], reference: str = "abl_fu") -> str:
+def exploration_section_markdown(name: str, records: Sequence[EpisodeRecord], reference: str = "abl_at_cbam") -> str:
     """RESULTS.md's section of the exploration benchmark from the starts of set ``name`` (:mod:`nue.evaluate.exploration`)."""
     from nue.evaluate.exploration import exploration_summary, format_exploration_markdown
 
