@@ -2,15 +2,17 @@
 (:class:`GoalPoseEstimator`) and a running estimate kept over the episode (:class:`GoalTracker`).
 
 One frame: SIFT keypoints (OpenCV) on the goal photo (once per episode) and the current RGB frame, Lowe's
-ratio test, one match per goal keypoint; each matched current keypoint becomes a 3-D point in the current
-camera frame from the current z-depth (:func:`nue.sim.camera.pixel_directions` times the pixel's depth;
-keypoints on a depth edge are left out); PnP-RANSAC (``cv2.solvePnPRansac``) finds the goal camera that sees
-those points at the goal keypoints' pixels, its consensus set being the geometric verification, refined on
-the inliers (Levenberg-Marquardt). The pose is kept only with at least ``min_inliers`` inliers and when it is
-plausible: every camera of the task is level and at the same height, so the goal camera's down axis must be
-within ``max_tilt_deg`` of the current one's and its centre within ``max_height_error`` of the current
-camera's height, at most ``max_range`` away. The camera centre then goes to the world through the robot's
-pose (:func:`nue.sim.camera.world_from_camera`).
+ratio test both ways (a mutual match); each matched current keypoint becomes a 3-D point in the current camera
+frame from the current z-depth (:func:`nue.sim.camera.pixel_directions` times the pixel's depth; keypoints on a
+depth edge are left out). Geometric verification: PnP-RANSAC (``cv2.solvePnPRansac``) finds the goal camera that
+sees those points at the goal keypoints' pixels, refined on its inliers (Levenberg-Marquardt); it is rerun on the
+matches outside the consensus (up to ``hypotheses`` poses), because a repeated texture can outvote the unique
+content. A pose is plausible when the goal camera is level and at the current camera's height (every camera of
+the task is) and at most ``max_range`` away; the plausible poses are scored photometrically (the current frame
+moved by its depth into the goal view against the goal photo, :meth:`GoalPoseEstimator.agreement`), and the best
+is kept if it has ``min_inliers`` inliers, agrees at least ``min_agreement`` and clearly more than any other
+pose elsewhere. Its camera centre goes to the world through the robot's pose
+(:func:`nue.sim.camera.world_from_camera`).
 
 Pixel convention: OpenCV puts a pixel's centre at integer coordinates, the camera model (``nue.sim.camera``)
 at ``+0.5``; keypoints are shifted by 0.5 px so the task's intrinsics (``cx = W / 2``) hold unchanged.
@@ -49,16 +51,22 @@ class GoalPoseConfig:
     """PnP-RANSAC iterations."""
     min_inliers: int = 12
     """Fewer PnP inliers than this: no estimate from the frame."""
-    ambiguity: float = 0.5
-    """A second PnP-RANSAC on the matches outside the first consensus: if it finds at least this fraction of the
-    first one's inliers (and ``min_inliers``) for a camera more than ``consistent_centres`` away, the frame is
-    ambiguous (a repeated texture: striped wallpaper, floor tiles) and gives no estimate."""
+    hypotheses: int = 3
+    """PnP-RANSAC is run up to this many times, each on the matches outside the earlier consensus sets: our houses
+    tile wall, floor and wood textures every metre, so a pose shifted by one repeat can fit many matches and only
+    the unique content (pictures, furniture edges, doorways) supports the right one."""
+    min_rival_inliers: int = 6
+    """A hypothesis needs at least this many inliers to be considered."""
     consistent_centres: float = 0.3
-    """Two PnP solutions whose camera centres are closer than this agree, metres."""
+    """Two hypotheses whose camera centres are closer than this are the same pose, metres."""
     check_stride: int = 3
     """The photometric check (:meth:`GoalPoseEstimator.agreement`) samples every this-many-th pixel per axis."""
-    min_agreement: float = 0.6
-    """Least normalised cross-correlation between the current frame moved into the goal view and the goal photo."""
+    min_agreement: float = 0.75
+    """Least normalised cross-correlation between the current frame moved into the goal view and the goal photo
+    (right poses measured 0.8-0.99, poses off by a texture repeat mostly below 0.6)."""
+    agreement_margin: float = 0.15
+    """The most agreeing plausible hypothesis wins only if every other one more than ``consistent_centres`` away
+    agrees less by this margin; else the frame is ``ambiguous``."""
     max_tilt_deg: float = 10.0
     """The goal camera's down axis must be within this angle of the current camera's (both are level), degrees."""
     max_height_error: float = 0.25
@@ -189,13 +197,43 @@ class GoalPoseEstimator:
         inside = (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
         if inside.sum() < 20:
             return 0.0, 0.0
-        a = cur[valid][front][inside]
-        b = self._goal_gray[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+        # a z-buffer at the sampling resolution: per goal cell only the nearest point (the one the goal camera sees)
+        cell = (v[inside].astype(np.int64) // k) * (cam.width // k + 1) + u[inside].astype(np.int64) // k
+        order = np.lexsort((pg[front][inside, 2], cell))
+        first = order[np.r_[True, cell[order][1:] != cell[order][:-1]]]
+        a = cur[valid][front][inside][first]
+        b = self._goal_gray[v[inside][first].astype(np.int64), u[inside][first].astype(np.int64)]
         a, b = a - a.mean(), b - b.mean()
         ncc = float((a * b).sum() / max(math.sqrt(float((a * a).sum() * (b * b).sum())), 1e-9))
         covered = np.zeros((cam.height // k + 1, cam.width // k + 1), dtype=bool)
-        covered[v[inside].astype(np.int64) // k, u[inside].astype(np.int64) // k] = True
+        covered.ravel()[cell] = True
         return ncc, float(covered.mean())
+
+    def _hypotheses(self, obj: np.ndarray, img: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Up to ``hypotheses`` PnP-RANSAC poses, each on the matches outside the consensus sets before it, with at
+        least ``min_rival_inliers`` inliers: ``(rvec, tvec, inlier indices into obj)``, most inliers first."""
+        cfg = self.config
+        idx = np.arange(len(obj))
+        out = []
+        while len(out) < cfg.hypotheses and len(idx) >= max(cfg.min_rival_inliers, 4):
+            solved = self._ransac(obj[idx], img[idx])
+            if solved is None or len(solved[2]) < cfg.min_rival_inliers:
+                break
+            out.append((solved[0], solved[1], idx[solved[2]]))
+            idx = np.delete(idx, solved[2])
+        return out
+
+    def _implausible(self, rot: np.ndarray, centre: np.ndarray) -> str:
+        """Why a goal camera (rotation current -> goal, centre (3,) in the current camera frame) cannot be the
+        goal camera ('' if it can): ``tilted``, ``height`` or ``range``."""
+        cfg = self.config
+        if math.degrees(math.acos(float(np.clip(rot[1, 1], -1.0, 1.0)))) > cfg.max_tilt_deg:  # goal's down axis vs ours
+            return "tilted"
+        if abs(centre[1]) > cfg.max_height_error:
+            return "height"
+        if math.hypot(centre[0], centre[2]) > cfg.max_range:
+            return "range"
+        return ""
 
     def estimate(self, rgb: np.ndarray, depth: np.ndarray, pose) -> GoalMeasurement | None:
         """The goal pose seen from the current frame: ``rgb`` (H, W, 3) uint8, ``depth`` (H, W[, 1]) z-depth
@@ -214,48 +252,48 @@ class GoalPoseEstimator:
         if len(ok) < max(cfg.min_matches, 4):
             rep.reason = "few_matches"
             return None
-        solved = self._ransac(obj, img)
-        if solved is None:
+        hyps = self._hypotheses(obj, img)
+        if not hyps:
             rep.reason = "pnp_failed"
             return None
-        rvec, tvec, inl = solved
-        rep.inliers = len(inl)
+        rep.inliers = len(hyps[0][2])
+        scored = []  # (agreement, inliers, rvec, tvec, centre) of the plausible hypotheses
+        reason = ""
+        for rvec, tvec, inl in hyps:
+            if len(inl) >= cfg.min_inliers:
+                rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], self.K, None, rvec, tvec)
+            rot, _ = cv2.Rodrigues(rvec)  # current camera frame -> goal camera frame
+            centre = _centre(rvec, tvec)
+            why = self._implausible(rot, centre)
+            if why:
+                reason = reason or why
+                continue
+            scored.append((self.agreement(rgb, depth, rot, tvec)[0], inl, rvec, tvec, centre))
+        if not scored:
+            rep.reason = reason
+            return None
+        scored.sort(key=lambda h: -h[0])
+        ncc, inl, rvec, tvec, centre = scored[0]
+        rep.agreement, rep.inliers = ncc, len(inl)
         if len(inl) < cfg.min_inliers:
             rep.reason = "few_inliers"
             return None
-        rest = np.setdiff1d(np.arange(len(obj)), inl)
-        other = self._ransac(obj[rest], img[rest]) if len(rest) >= cfg.min_inliers else None
-        if other is not None and len(other[2]) >= max(cfg.min_inliers, cfg.ambiguity * len(inl)):
-            apart = np.linalg.norm(_centre(other[0], other[1]) - _centre(rvec, tvec))
-            if apart > cfg.consistent_centres:
-                rep.reason = "ambiguous"
-                return None
-        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], self.K, None, rvec, tvec)
-        proj, _ = cv2.projectPoints(obj[inl], rvec, tvec, self.K, None)
-        reproj = float(np.linalg.norm(proj.reshape(-1, 2) - img[inl], axis=1).mean())
-        rot, _ = cv2.Rodrigues(rvec)  # current camera frame -> goal camera frame
-        centre = _centre(rvec, tvec)
-        tilt = math.degrees(math.acos(float(np.clip(rot[1, 1], -1.0, 1.0))))  # goal's down axis vs ours
-        if tilt > cfg.max_tilt_deg:
-            rep.reason = "tilted"
-            return None
-        if abs(centre[1]) > cfg.max_height_error:
-            rep.reason = "height"
-            return None
-        distance = float(math.hypot(centre[0], centre[2]))
-        if distance > cfg.max_range:
-            rep.reason = "range"
-            return None
-        ncc, overlap = self.agreement(rgb, depth, rot, tvec)
-        rep.agreement = ncc
         if ncc < cfg.min_agreement:
             rep.reason = "disagrees"
             return None
+        if any(np.linalg.norm(c - centre) > cfg.consistent_centres and a > ncc - cfg.agreement_margin
+               for a, _, _, _, c in scored[1:]):
+            rep.reason = "ambiguous"
+            return None
+        proj, _ = cv2.projectPoints(obj[inl], rvec, tvec, self.K, None)
+        reproj = float(np.linalg.norm(proj.reshape(-1, 2) - img[inl], axis=1).mean())
+        rot, _ = cv2.Rodrigues(rvec)
+        distance = float(math.hypot(centre[0], centre[2]))
         m = world_from_camera(pose, self.camera, self.floor_z)
         xy = (m[:3, :3] @ centre + m[:3, 3])[:2]
         axis = m[:3, :3] @ rot[2]  # the goal camera's optical axis in the world
         return GoalMeasurement(xy=xy, yaw=math.atan2(axis[1], axis[0]), inliers=len(inl), matches=len(ok),
-                               distance=distance, reprojection=reproj, agreement=ncc)
+                               distance=distance, reprojection=reproj, agreement=float(ncc))
 
 
 def _centre(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
