@@ -36,6 +36,9 @@ class RunSettings:
     """sha256 (16 hex digits) of the episode's canonical JSON (:meth:`episode_digest`)."""
     scene: str
     """The house's content hash."""
+    last_mile: dict | None = None
+    """The last-mile wrapper's settings (:meth:`nue.policy.last_mile.LastMileConfig.to_dict`) of a ``sling+``
+    method; None otherwise (then left out of the stored form, as in records made before it existed)."""
 
     @staticmethod
     def episode_digest(episode: Episode) -> str:
@@ -43,8 +46,11 @@ class RunSettings:
         return hashlib.sha256(json.dumps(dataclasses.asdict(episode), sort_keys=True).encode()).hexdigest()[:16]
 
     def to_dict(self) -> dict:
-        """The record's ``extra['settings']``."""
-        return dataclasses.asdict(self)
+        """The record's ``extra['settings']`` (``last_mile`` only when set)."""
+        d = dataclasses.asdict(self)
+        if d["last_mile"] is None:
+            del d["last_mile"]
+        return d
 
     def differences(self, stored: Mapping[str, Any] | None) -> list[str]:
         """Sorted names of the settings in which a record's stored ``extra['settings']`` differs from these
@@ -52,7 +58,7 @@ class RunSettings:
         if stored is None:
             return ["settings (an older record)"]
         now = self.to_dict()
-        return sorted(k for k in now if stored.get(k) != now[k])
+        return sorted(k for k in set(now) | set(stored) if stored.get(k) != now.get(k))
 
 
 @dataclass(frozen=True)
@@ -83,3 +89,5 @@ class EvalJob:
     """Step limit override (0 = the preset's)."""
     settings: RunSettings
     """What the record stores to be compared on resume."""
+    last_mile: Any = None
+    """A ``sling+`` method: the :class:`nue.policy.last_mile.LastMileConfig` its agent is wrapped with; else None."""

@@ -134,33 +134,40 @@ class SeenMap:
         return bool(np.all(self.is_free(a + (b - a) * np.linspace(0.0, 1.0, k)[:, None])))
 
     def cost_to_go(self, start_xy, target_xy) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(lo (2,), field)``: the cost-to-go (metres-equivalent, inf = unreachable) to the target, in the window of
-        cells starting at cell ``lo`` around the start and the target; None if the target has no free cell near it.
-        The target cell is the unblocked cell nearest to ``target_xy``. Cached until the map changes."""
+        """``(lo (2,), field)``: the cost-to-go (metres-equivalent, inf = unreachable) to the target over a window of
+        cells starting at cell ``lo``: the box around the start and the target widened by ``plan_margin``, or the
+        whole map when the start cannot reach the target inside that box. The target cell is the unblocked cell
+        nearest to ``target_xy``. None if no cell is unblocked. Cached until the map changes."""
         cfg, m = self.config, self.free.shape[0]
         pad = int(math.ceil(cfg.plan_margin / self.cell))
         cells = np.clip(np.stack([self.cell_of(start_xy), self.cell_of(target_xy)]), 0, m - 1)
-        lo, hi = np.clip(cells.min(axis=0) - pad, 0, m - 1), np.clip(cells.max(axis=0) + pad, 0, m - 1)
-        key = (tuple(cells[1]), self.version, tuple(lo), tuple(hi))
+        key = (tuple(cells[0]), tuple(cells[1]), self.version)
         if self._plan is not None and self._plan[0] == key:
             return self._plan[1]
+        lo, hi = np.clip(cells.min(axis=0) - pad, 0, m - 1), np.clip(cells.max(axis=0) + pad, 0, m - 1)
+        result = self._field(lo, hi, cells[1])
+        if result is not None and not np.isfinite(result[1][tuple(cells[0] - lo)]) and (lo > 0).any() | (hi < m - 1).any():
+            result = self._field(np.zeros(2, dtype=np.int64), np.full(2, m - 1), cells[1])
+        self._plan = (key, result)
+        return result
+
+    def _field(self, lo: np.ndarray, hi: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Cost-to-go to cell ``target`` (2,) over the cells ``lo`` .. ``hi`` (inclusive), as :meth:`cost_to_go`."""
+        cfg = self.config
         window = (slice(lo[0], hi[0] + 1), slice(lo[1], hi[1] + 1))
         blocked = self.blocked(window)
+        if blocked.all():
+            return None
         clearance = ndimage.distance_transform_edt(~blocked) * self.cell if blocked.any() else np.full(blocked.shape, np.inf)
         cost = np.where(self.floor[window] | self.visited[window], 1.0, cfg.unknown_cost)
         cost = cost + cfg.comfort_weight * np.clip(1.0 - clearance / cfg.comfort_clearance, 0.0, 1.0)
         cost[blocked] = np.inf
-        goal = cells[1] - lo
+        goal = target - lo
         if blocked[tuple(goal)]:
-            if blocked.all():
-                self._plan = (key, None)
-                return None
             near = ndimage.distance_transform_edt(blocked, return_distances=False, return_indices=True)
             goal = near[:, goal[0], goal[1]]
         costs, _ = MCP_Geometric(cost, fully_connected=True).find_costs([tuple(int(v) for v in goal)])
-        result = (lo, np.where(np.isfinite(costs), costs * self.cell, np.inf))
-        self._plan = (key, result)
-        return result
+        return lo, np.where(np.isfinite(costs), costs * self.cell, np.inf)
 
     def shortest_path(self, start_xy, goal_xy, max_len: int | None = None, comfort: bool = True) -> np.ndarray:
         """Waypoints (K, 2) world from the start along the steepest descent of :meth:`cost_to_go` (up to ``max_len``
