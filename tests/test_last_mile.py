@@ -227,3 +227,11 @@ def test_nue_eval_runs_a_sling_row_and_refuses_other_wrapper_settings_on_resume(
                        last_mile=LastMileConfig(match_every=7))
     with pytest.raises(DataError, match="last_mile"):
         run_eval([f"sling+fr={ckpt}"], out, other, progress=False)
+
+
+def test_a_sling_spec_without_a_checkpoint_exits_2(tmp_path):
+    res = nue_here("eval", "-c", "sling+", "--out", tmp_path / "r.jsonl")
+    assert res.returncode == 2 and "sling+" in res.stderr and "Traceback" not in res.stderr
+    missing = tmp_path / "missing.pt"
+    res = nue_here("eval", "-c", f"sling+{missing}", "--out", tmp_path / "r.jsonl")
+    assert res.returncode == 2 and str(missing) in res.stderr
