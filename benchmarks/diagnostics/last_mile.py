@@ -34,14 +34,18 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from nue.policy.agent import ExpertAgent  # noqa: E402
-from nue.policy.goal_pose import GoalPoseEstimator  # noqa: E402
-from nue.policy.last_mile import LastMileAgent  # noqa: E402
+from nue.policy.goal_pose import GoalPoseConfig, GoalPoseEstimator  # noqa: E402
+from nue.policy.last_mile import LastMileAgent, LastMileConfig  # noqa: E402
 from nue.rollout import run_episode  # noqa: E402
 from nue.scene.generator import ensure_house  # noqa: E402
 from nue.scene.scene import Scene  # noqa: E402
 from nue.sim.camera import quat_from_yaw  # noqa: E402
 from nue.sim.env import make_env  # noqa: E402
 from nue.sim.episodes import read_episodes  # noqa: E402
+
+
+POSE = GoalPoseConfig()
+"""The per-frame settings measured (``--pose`` overrides fields)."""
 
 
 def _offset_poses(goal: np.ndarray, env, rng: np.random.Generator) -> list[np.ndarray]:
@@ -102,7 +106,7 @@ class _Timed:
 def _wrapper_cost(scene, ep, start: np.ndarray) -> dict:
     """:class:`LastMileAgent` around :class:`_Turn` for up to 60 steps from ``start`` (x, y, yaw) behind the goal."""
     env = make_env(scene, "paper", max_steps=60)
-    agent = LastMileAgent(_Turn())
+    agent = LastMileAgent(_Turn(), LastMileConfig(pose=POSE))
     timed = _Timed(agent)
     moved = dataclasses.replace(ep, start_position=(float(start[0]), float(start[1]), 0.0),
                                 start_rotation=tuple(float(v) for v in quat_from_yaw(float(start[2]))))
@@ -120,7 +124,7 @@ def _summary(rows: list[dict]) -> dict:
         err = np.array([r["err_m"] for r in acc])
         out.update(within_0_5m=round(float((err <= 0.5).mean()), 3), median_err_m=round(float(np.median(err)), 3),
                    median_err_deg=round(float(np.median([r["err_deg"] for r in acc])), 2))
-        bins = [(12, 20), (20, 40), (40, 80), (80, 10_000)]
+        bins = [(0, 12), (12, 20), (20, 40), (40, 80), (80, 10_000)]
         out["by_inliers"] = {f"{lo}-{hi - 1 if hi < 10_000 else ''}": {
             "n": int(sum(lo <= r["inliers"] < hi for r in acc)),
             "within_0_5m": round(float(np.mean([r["err_m"] <= 0.5 for r in acc if lo <= r["inliers"] < hi])), 3)
@@ -143,8 +147,12 @@ def main() -> None:
     ap.add_argument("--scenes-root", default="data/scenes")
     ap.add_argument("--per-house", type=int, default=6)
     ap.add_argument("--cost-episodes", type=int, default=1, help="Wrapper-cost runs per house.")
+    ap.add_argument("--pose", action="append", default=[], metavar="FIELD=VALUE",
+                    help="Override a GoalPoseConfig field (e.g. min_inliers=8); repeatable.")
     ap.add_argument("--out", default="")
     args = ap.parse_args()
+    global POSE
+    POSE = dataclasses.replace(POSE, **{k: type(getattr(POSE, k))(v) for k, v in (o.split("=", 1) for o in args.pose)})
     cv2.setNumThreads(1)
     rng = np.random.default_rng(0)
     rows: dict[str, list[dict]] = {"offset": [], "expert_path": [], "other_house": []}
@@ -159,7 +167,7 @@ def main() -> None:
         for i, ep in enumerate(eps):
             obs, _ = env.reset(options={"episode_index": i})
             goal = np.asarray(ep.goal_pose, dtype=np.float64)
-            est = GoalPoseEstimator(env.task.camera, env.floor_z)
+            est = GoalPoseEstimator(env.task.camera, env.floor_z, POSE)
             est.set_goal(obs["goal"])
             offsets = _offset_poses(goal, env, rng)
             rows["offset"] += [_row(est, env, p, goal) for p in offsets]
@@ -167,7 +175,7 @@ def main() -> None:
             run_episode(env, ExpertAgent(), episode=ep, on_step=lambda s: path.append(np.asarray(s.obs["pose"], float)))
             rows["expert_path"] += [_row(est, env, p, goal) for p in path if np.linalg.norm(p[:2] - goal[:2]) <= 3.0]
             if prev_goal_photo is not None:
-                other = GoalPoseEstimator(env.task.camera, env.floor_z)
+                other = GoalPoseEstimator(env.task.camera, env.floor_z, POSE)
                 other.set_goal(prev_goal_photo)
                 rows["other_house"] += [_row(other, env, p, goal) for p in offsets]
             if i < args.cost_episodes and offsets:
@@ -186,6 +194,7 @@ def main() -> None:
             "cpu_ms_per_reset": round(1000 * float(np.mean([c["reset_cpu"] for c in cost])), 2),
             "control_share": round(len(per["controller"]) / steps, 3),
         }
+    result["pose_config"] = dataclasses.asdict(POSE)
     result["load_average"] = os.getloadavg()
     text = json.dumps(result, indent=1)
     print(text)
