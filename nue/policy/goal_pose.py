@@ -132,7 +132,10 @@ class GoalPoseEstimator:
         """SIFT keypoints of an (H, W, 3) uint8 image: pixel coordinates (K, 2) in the camera model's convention
         (centre of pixel (row v, col u) at (u + 0.5, v + 0.5)) and descriptors (K, 128) float32 (None if K = 0)."""
         gray = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
-        kps, des = self.sift.detectAndCompute(gray, None)
+        # detection may run on several threads, which can change the keypoints' order (and so RANSAC's samples):
+        # a fixed order keeps the estimates repeatable
+        kps = sorted(self.sift.detect(gray, None), key=lambda k: (k.pt[1], k.pt[0], k.size, k.angle, k.octave))
+        kps, des = self.sift.compute(gray, kps)
         uv = np.array([k.pt for k in kps], dtype=np.float64).reshape(-1, 2) + 0.5
         return uv, des
 
