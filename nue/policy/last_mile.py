@@ -47,6 +47,10 @@ class LastMileConfig:
     """Match the goal photo every this-many steps while the wrapped agent drives (SIFT costs ~10 ms a frame)."""
     match_every_driving: int = 2
     """... and while the controller drives (refines the estimate as the robot closes in)."""
+    follow_up_matches: int = 8
+    """After an attempt with at least this many ratio-test matches the next step is matched too, whatever the
+    schedule (views that locate the goal come in short runs; on FR's near misses of val252 this located the goal
+    in 8 of 14 episodes instead of 5, for 17% more matching)."""
     map_every: int = 2
     """Add every this-many-th depth frame to the map (every frame while the controller drives)."""
     lookahead: float = 0.8
@@ -90,6 +94,7 @@ class LastMileAgent:
         self.stop = task.action_id("STOP")
         self.t = -1
         self.driving = False
+        self.follow_up = False
         self.drive_steps = 0
         self.unreachable = 0
         self.events: list[tuple[int, str, Any]] = []
@@ -110,8 +115,9 @@ class LastMileAgent:
         if self.driving or self.t % cfg.map_every == 0:
             self.map.add_frame(obs["depth"], pose)
         t1 = time.perf_counter()
-        if self.t % (cfg.match_every_driving if self.driving else cfg.match_every) == 0:
+        if self.follow_up or self.t % (cfg.match_every_driving if self.driving else cfg.match_every) == 0:
             self._measure(obs, pose)
+            self.follow_up = self.estimator.report.matches >= cfg.follow_up_matches
         t2 = time.perf_counter()
         action = self._drive(pose) if self.tracker.accepted else None
         t3 = time.perf_counter()
