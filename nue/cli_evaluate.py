@@ -14,6 +14,7 @@ from nue.cli_config import RAY_ADDRESS, WORKERS, ConfigOptions, Opt, config_comm
 from nue.outputs import check_output_dir, check_output_file
 
 if TYPE_CHECKING:
+    from nue.evaluate.exploration import ExploreConfig
     from nue.evaluate.runner import EvalConfig
 
 
@@ -26,6 +27,16 @@ def _echo_episode_checks(skipped, snapped: dict | None = None, source=None) -> N
     if snapped:
         parts = [f"{eid} (start {s.start:.3f} m, goal {s.goal:.3f} m)" for eid, s in snapped.items()]
         typer.echo(f"{source}: snapped to navigable cells: {', '.join(parts)}")
+
+
+DROP_HELP = ("A records file with a key recorded twice is refused; with this, keep the first record of each key and "
+             "say how many were dropped.")
+
+
+def _echo_dropped(path: Path, n: int) -> None:
+    from nue.evaluate.record_keys import dropped_message
+
+    typer.echo(dropped_message(path, n), err=True)
 
 
 def expert_cmd(
@@ -94,9 +105,36 @@ def eval_cmd(
     skipped: list = []
     run_eval(method, out, cfg, workers=workers, ray_address=ray_address, skipped=skipped)
     _echo_episode_checks(skipped)
-    records = load_records(out)
+    records = load_records(out, drop_duplicates=True, on_dropped=_echo_dropped)  # duplicates of an older writer
     for name in sorted({r.method for r in records}):
         typer.echo(f"## {name}\n" + format_table(aggregate([r for r in records if r.method == name])))
+
+
+EXPLORE = ConfigOptions(
+    "nue.evaluate.exploration:ExploreConfig", Opt("episodes_dir", path=True), Opt("scenes_root", path=True), "task",
+    "seed", Opt("device", check=A.device), Opt("steps", check=A.positive), Opt("per_bin", check=A.non_negative))
+
+
+@config_command
+def explore_cmd(
+    method: list[str] = typer.Option(..., "--checkpoint", "-c", help="Checkpoint path, name=path, 'expert-explore' "
+                                     "or 'random'; repeatable."),
+    out: Path = typer.Option(Path("results/explore.jsonl"), help="JSON-lines file the records are appended to."),
+    cfg: ExploreConfig = EXPLORE,
+    reference: str = typer.Option("abl_fu", help="Method the others' seen area is divided by in the summary."),
+    workers: int = WORKERS,
+    ray_address: Optional[str] = RAY_ADDRESS,
+):
+    """Exploration benchmark: seen floor area over STEPS steps from the episodes' starts with a goal photo from
+    another house (nothing to find; resumes if rerun)."""
+    from nue.evaluate.exploration import exploration_summary, format_exploration_markdown, run_explore
+    from nue.evaluate.report import load_records
+
+    A.positive("--workers", workers)
+    check_output_file(out, "the records file")
+    run_explore(method, out, cfg, workers=workers, ray_address=ray_address)
+    records = load_records(out, drop_duplicates=True, on_dropped=_echo_dropped)  # duplicates of an older writer
+    typer.echo(format_exploration_markdown(exploration_summary(records, reference), reference))
 
 
 def report_cmd(
@@ -110,6 +148,9 @@ def report_cmd(
                                           "report folder OUT/NAME; repeatable."),
     name: str = typer.Option("", help="The episode set of RECORDS (e.g. val252), as RESULTS.md's pooled section names "
                              "it; default \"Table I's episodes\"."),
+    explore: list[str] = typer.Option([], help="NAME=FILE: `nue explore` records from set NAME's starts, a section of "
+                                      "RESULTS.md; repeatable."),
+    drop_duplicates: bool = typer.Option(False, help=DROP_HELP),
 ):
     """Table I (SR / SPL / DTS per difficulty, CIs, paired differences to NUE) and coverage."""
     import json
@@ -123,7 +164,8 @@ def report_cmd(
     check_output_dir(out, "the report folder")
     if results_md:
         check_output_file(results_md)
-    recs = load_records(*records)
+    read = {"drop_duplicates": drop_duplicates, "on_dropped": _echo_dropped}
+    recs = load_records(*records, **read)
     sets = {}
     for spec in episode_set:
         set_name, sep, path = spec.partition("=")
@@ -131,7 +173,13 @@ def report_cmd(
             raise ConfigError("--set", f"expected NAME=FILE, got {spec!r}")
         if set_name in sets:
             raise ConfigError("--set", f"episode set {set_name!r} given twice")
-        sets[set_name] = load_records(Path(path))
+        sets[set_name] = load_records(Path(path), **read)
+    explored = {}
+    for spec in explore:
+        set_name, sep, path = spec.partition("=")
+        if not sep or not set_name or not path:
+            raise ConfigError("--explore", f"expected NAME=FILE, got {spec!r}")
+        explored[set_name] = load_records(Path(path), **read)
     paths = {**write_report(recs, out, task=task), **write_coverage_figure(recs, out)}
     for set_name, set_recs in sets.items():
         write_report(set_recs, out / set_name, task=task)
@@ -141,7 +189,7 @@ def report_cmd(
         meta_path = results_md.parent / f"{results_md.stem}.meta.json"
         meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {
             "command": command, "date": "", "commit": "", "machine": f"{platform.machine()}, {os.cpu_count()} CPUs"}
-        results_md.write_text(render_results_md(recs, meta, task, sets=sets, main_name=name))
+        results_md.write_text(render_results_md(recs, meta, task, sets=sets, main_name=name, explore=explored))
         typer.echo(f"wrote {results_md}")
     typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
 
@@ -157,7 +205,13 @@ def diagnose_cmd(
     probe_steps: int = typer.Option(20_000, help="Probe: subsample at most this many steps."),
     probe_cog: bool = typer.Option(False, help="Probe: add the mean norm of I_cog to the features."),
     seed: int = typer.Option(0, help="Seed of the other-step maps, the probe's subsample and its shuffled control."),
+    handoff: bool = typer.Option(False, help="With --records: recompute the exploration -> exploitation hand-off of "
+                                 "records made without it into their hand-off files (records_X.handoff.jsonl; resumes)."),
+    episodes_dir: Optional[Path] = typer.Option(None, help="--handoff: the records' episode files (<house>.json)."),
+    scenes_root: Path = typer.Option(Path("data/scenes"), help="--handoff: where the houses are (generated if missing)."),
+    workers: int = WORKERS,
     out: Optional[Path] = typer.Option(None, help="Also write everything as JSON here."),
+    drop_duplicates: bool = typer.Option(False, help=DROP_HELP),
 ):
     """Closed-loop diagnostics from records; map controls and a previous-action probe from demonstrations."""
     import json
@@ -174,10 +228,25 @@ def diagnose_cmd(
     if out:
         check_output_file(out)
     result: dict = {}
+    if handoff and (not records or episodes_dir is None):
+        raise ConfigError("--handoff", "needs --records and --episodes-dir (the records' episode files)")
     if records:
-        diags = D.record_diagnostics(D.read_records(*records), task, method)
+        from nue.evaluate.handoff import format_handoff_markdown, handoff_summaries
+        from nue.evaluate.handoff_job import handoff_path, load_records_with_handoff, run_handoff
+
+        A.positive("--workers", workers)
+        if handoff:
+            for r in records:
+                run_handoff(D.read_records(r, drop_duplicates=drop_duplicates), handoff_path(r), episodes_dir,
+                            scenes_root, task, workers=workers)
+        recs = load_records_with_handoff(*records, drop_duplicates=drop_duplicates, on_dropped=_echo_dropped)
+        diags = D.record_diagnostics(recs, task, method)
         result["records"] = diags
         typer.echo("## Closed-loop diagnostics\n\n" + D.format_record_diagnostics(diags))
+        summaries = {k: v for k, v in handoff_summaries(recs).items() if not method or k in method}
+        if summaries:
+            result["handoff"] = summaries
+            typer.echo("## Exploration -> exploitation hand-off\n\n" + format_handoff_markdown(summaries))
     if data is not None:
         from nue.evaluate import diagnose_maps as M
         from nue.sim.task import get_task

@@ -4,11 +4,10 @@ presets ``RECIPES``, and the time estimate a recipe implies, stage by stage (``e
 A recipe fixes everything that changes the results: the demonstrations (expert, DART noise, episodes per
 bin), the models and their training (budget in wall-clock minutes on one core or in samples, batch,
 precision, map dropout, closed-loop selection, optional DAgger), and the evaluation sets. How the run is
-executed (worker processes, a Ray cluster, folders) is not part of it. ``v6``, the default, is ``v5`` with a budget
-in samples seen (the same on any machine). ``v5`` is the recipe of the shipped
-checkpoints (``checkpoints/README.md``, "v5 recipe": the training config of ``checkpoints/*.pt``) applied to
-every model of Table I; ``v3`` is its predecessor (34 instead of 50 minutes per model);
-``quick`` is tiny everything, for CI.
+executed (worker processes, a Ray cluster, folders) is not part of it. ``v6``, the default, is the recipe of the
+shipped ``checkpoints/*.pt`` (``checkpoints/README.md``): ``v5`` with a budget of 256,000 samples per model, the same
+on any machine. ``v5`` trains each model for 50 minutes on one core (its models are ``results/v5/checkpoints/``),
+``v3`` for 34 minutes with three snapshots competing in the selection; ``quick`` is tiny everything, for CI.
 """
 
 from __future__ import annotations
@@ -68,8 +67,8 @@ class Recipe:
     """Per-model budget on one core (one torch thread), minutes of ``budget_clock``; 0 = none."""
     budget_clock: str = "cpu"
     """What ``train_minutes`` counts (``nue train --budget-clock``): ``cpu``, each training process's CPU time, so a
-    model gets its minutes of one core even when other work shares the machine; ``wall``, wall-clock (the shipped
-    checkpoints were trained so, side by side on a machine kept otherwise quiet, where the two agree)."""
+    model gets its minutes of one core even when other work shares the machine; ``wall``, wall-clock (the two agree
+    on a machine kept otherwise quiet)."""
     train_samples: int = 0
     """Per-model budget in samples seen (steps x samples per step); 0 = none (then ``steps`` caps)."""
     steps: tuple[tuple[str, StepPlan], ...] = (("nue", StepPlan(12_000, 750)), ("fr", StepPlan(30_000, 1_500)),
@@ -84,10 +83,10 @@ class Recipe:
     warmup: int = 100
     """Linear warm-up steps."""
     precision: str = "auto"
-    """``auto`` (bf16 autocast where the device runs bfloat16 natively, as on the machine that trained the shipped
-    checkpoints, else fp32), ``fp32`` or ``bf16``. Forced bf16 on a CPU without AVX512-BF16 is emulated and ~7x
-    slower (benchmarks/results/train_no_native_bf16.json), which under a wall-clock budget cuts the samples seen
-    7-fold; held-out accuracy of bf16 and fp32 is the same step for step."""
+    """``auto`` (bf16 autocast where the device runs bfloat16 natively, else fp32), ``fp32`` or ``bf16``. Forced
+    bf16 on a CPU without AVX512-BF16 is emulated and ~7x slower (benchmarks/results/train_no_native_bf16.json),
+    which under a time budget cuts the samples seen 7-fold; held-out accuracy of bf16 and fp32 is the same step for
+    step."""
     map_dropout: float = 0.2
     """Probability of replacing a sample's memory maps by another sample's; models that read maps only."""
     select: str = "closed_loop"
@@ -190,10 +189,8 @@ V5 = V3.replace(name="v5", train_minutes=50.0, select_candidates=2,
 
 V6 = V5.replace(name="v6", train_minutes=0.0, train_samples=256_000)
 """v5 with a budget in samples seen instead of minutes: the same for every model whatever the machine, its load or
-how many sessions a run spans (a time budget gives a slower machine's models fewer samples, and the models of one
-run trained on different days unequal ones). 256k samples = 4,000 steps of 64: NUE runs of 192k samples reached
-76.2 / 85.7% SR on the 84 val episodes against 77.4 / 75.0% for the 346k / 390k v5 ones (nue_v5a, nue.pt); held-out
-accuracy is flat past ~200k (benchmarks/README.md, storage experiment; checkpoints/README.md, v5)."""
+how many sessions a run spans (a time budget gives a slower machine's models fewer samples). 256,000 samples are
+4,000 optimiser steps of 64 samples (Nav-A3C: 8 sequences of 8); why that many: docs/history/checkpoints.md."""
 
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
@@ -205,9 +202,8 @@ RECIPES: dict[str, Recipe] = {
         seq_len=2, warmup=1, precision="fp32", select="accuracy", eval_houses=(0,), eval_max_episodes=1,
         eval_max_steps=5, experts=("expert",)),
 }
-"""Named recipes: ``v6`` (the default: v5 with 256k samples per model instead of 50 minutes), ``v5`` (the shipped
-checkpoints' recipe, for all eight models), ``v3``
-(checkpoints/README.md "v3 recipe") and ``quick`` (CI)."""
+"""Named recipes: ``v6`` (the default and the shipped checkpoints': v5 with 256k samples per model instead of 50
+minutes), ``v5``, ``v3`` (docs/history/checkpoints.md) and ``quick`` (CI)."""
 
 
 def get_recipe(name: str) -> Recipe:
@@ -221,11 +217,11 @@ def get_recipe(name: str) -> Recipe:
 # --- time estimate --------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class CostModel:
-    """Measured costs the estimate scales (2-core x86 CPU with AVX512-BF16, checkpoints/README.md v2 / v3 runs)."""
+    """Costs measured in earlier runs on 2-core x86 CPUs, which the estimate scales (each field says where its
+    number comes from; docs/history/ has the runs)."""
 
     collect_s_per_step: float = 0.052
-    """Collection, seconds per step per worker (the v5 command at 20da927: 27.7 min x 2 workers / 63,999 steps;
-    before the agent-loop speedups of issue 11, v2 / v3 took 0.093 / 0.098)."""
+    """Collection, seconds per step per worker (the v5 / v6 collection: 63,999 steps in 27.7 min on 2 workers)."""
     steps_per_episode: tuple[tuple[str, float], ...] = (("geodesic", 36.8), ("explore", 102.0))
     """Noise-free episode length per expert, steps (v1: 41,756 / 1,134; explore: v3's 145 / 1.42)."""
     noise_length_factor: float = 1.4
@@ -235,12 +231,11 @@ class CostModel:
     samples_per_s: tuple[tuple[str, float], ...] = (("nue", 98.0), ("fr", 200.0), ("nav_a3c", 232.0))
     """Eager training throughput per model kind, two trainings side by side on a 2-core Xeon without native bf16
     (fp32): the compiled rates of the v6 run (``results/reproduce/run/stages``, 256,000 samples in ``train_seconds``:
-    the six NUE-family models 136-163 samples/s, mean 147; FR 330; Nav-A3C 334) divided by ``compiled_speedup``.
-    Session 1 of that run, eager on an AMD EPYC, trained NUE at 51-57 samples/s."""
+    the six NUE-family models 136-163 samples/s, mean 147; FR 330; Nav-A3C 334) divided by ``compiled_speedup``."""
     compiled_speedup: tuple[tuple[str, float], ...] = (("nue", 1.5), ("fr", 1.65), ("nav_a3c", 1.44))
     """Training throughput with ``nue train --compile`` relative to eager, per model kind: eager and compiled steps
-    interleaved in one process (batch 64 / 8 x 8 sequences, fp32, one thread, synthetic data, aed64cc, a busy
-    2-core Xeon without native bf16)."""
+    interleaved in one process (batch 64 / 8 x 8 sequences, fp32, one thread, synthetic data, a 2-core Xeon without
+    native bf16)."""
     select_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 11.5), ("fr", 1.7), ("nav_a3c", 1.9))
     """Closed-loop selection, seconds per episode (400-step limit; the v6 run: 2 x 21 episodes in 7.2-8.6 min per
     NUE-family model, 73 s FR, 79 s Nav-A3C)."""

@@ -56,13 +56,15 @@ def run_episode(
     seed: int = 0,
     on_step: Callable[[StepData], None] | None = None,
     method: str = "",
+    reset_options: dict[str, Any] | None = None,
 ) -> EpisodeRecord:
     """Run one episode to its end and return its record.
 
     ``seed`` seeds the env's reset (when it draws the episode), the memory's ray sampling and the
-    agent's action sampling.
+    agent's action sampling; ``reset_options`` are further options of the env's reset (e.g. ``goal_image``,
+    ``explore_only``).
     """
-    options: dict[str, Any] = {}
+    options: dict[str, Any] = dict(reset_options or {})
     if episode is not None:
         options["episode"] = episode
     elif episode_index is not None:

@@ -87,6 +87,11 @@ def _reference_floor_obstacle(depth, pose, cam, grid, floor_z, config):
     inside = (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
     cells = cells[front][inside]
     sees = floor_px[v[inside], u[inside]]
+    if config.occlusion_rows is not None:  # the pixel's depth agrees with the cell centre's (not a wall's foot)
+        zc = p_cam[front, 2][inside]
+        h_cam = m[2, 3] - floor_z
+        tol = config.floor_tolerance + config.occlusion_rows * (zc**2 + h_cam**2) / (h_cam * cam.fy)
+        sees &= np.abs(z[v[inside], u[inside]] - zc) <= tol
     floor[cells[sees, 0], cells[sees, 1]] = True
     height = pts[..., 2] - floor_z
     hit = (z > 0) & (height >= config.obstacle_min_height) & (height <= config.obstacle_max_height) & near_px
@@ -120,6 +125,23 @@ def test_seen_cells_equal_the_plain_geometry_and_the_tracker_the_union(box_nav, 
         union = ref_floor if union is None else union | ref_floor
         areas.append(round(seen.cell_area(box_nav) * float(np.count_nonzero(union)), 6))
     assert np.array_equal(tracker.seen, union) and tracker.areas == areas and areas[-1] > areas[0]
+
+
+def test_floor_behind_a_wall_is_not_seen(box_nav, box_renderer):
+    """Facing the box room's inner wall (x = -1, y < 1.5) from 3.5 m, no floor cell behind it counts as seen; without
+    the depth check (``occlusion_rows=None``) the floor just behind the wall's foot did (300 cells, 0.75 m²)."""
+    from nue.sim import seen
+
+    cam = box_renderer.camera
+    pose = np.array([2.5, -1.0, np.pi])
+    _, depth = box_renderer.render(pose, 0.0)
+    centres = np.asarray(box_nav.cell_centre(np.argwhere(np.ones(box_nav.free.shape, dtype=bool)))).reshape(
+        *box_nav.free.shape, 2)
+    behind = (centres[..., 0] < -1.1) & (centres[..., 1] < 1.3)
+    now = seen.seen_floor_cells(depth, pose, cam, box_nav, 0.0)
+    before = seen.seen_floor_cells(depth, pose, cam, box_nav, 0.0, seen.CoverageConfig(occlusion_rows=None))
+    assert now.sum() > 100 and not (now & behind).any()
+    assert (before & behind).sum() > 100
 
 
 def test_explorer_succeeds_on_the_ci_episodes(paper_runs):

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from nue.evaluate.results_md import committed_inputs, render_results_md
+from nue.evaluate.results_md import committed_explore, committed_inputs, render_results_md
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -18,4 +18,5 @@ def test_results_md_regenerates_from_the_records():
     assert records.is_file() and meta.is_file(), "RESULTS.md needs results/records.jsonl and RESULTS.meta.json"
     main, meta_d, sets, main_name = committed_inputs(ROOT)
     assert main_name == "val252" and list(sets) == ["val", "val_plain"]
-    assert render_results_md(main, meta_d, sets=sets, main_name=main_name) == results.read_text()
+    text = render_results_md(main, meta_d, sets=sets, main_name=main_name, explore=committed_explore(ROOT))
+    assert text == results.read_text()

@@ -66,6 +66,11 @@ class CoverageTracker:
     """Seen area after each step so far, m²."""
     seen: np.ndarray | None = None
     """(M, M) bool union of seen cells so far."""
+    region: np.ndarray | None = None
+    """Optional (M, M) bool cells (e.g. the floor the robot can reach, :func:`explorable_cells`): ``region_areas``
+    then holds the seen area within them after each step, m²."""
+    region_areas: list[float] = field(default_factory=list)
+    """Seen area within ``region`` after each step so far, m² (empty without a region)."""
     _centres: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def __call__(self, step) -> None:
@@ -77,6 +82,29 @@ class CoverageTracker:
                              known=self.seen, centres=self._centres)
         self.seen = m if self.seen is None else (self.seen | m)
         self.areas.append(round(cell_area(self.grid) * float(np.count_nonzero(self.seen)), 6))
+        if self.region is not None:
+            self.region_areas.append(round(cell_area(self.grid) * float(np.count_nonzero(self.seen & self.region)), 6))
+
+
+def explorable_cells(grid, start_xy) -> np.ndarray:
+    """(M, M) bool planning cells of ``grid`` (a :class:`~nue.scene.navgrid.NavGrid`) holding floor of the
+    traversability map's free region (1 cm pixels, not eroded) that contains the navigable point nearest
+    ``start_xy``: the floor an exploring robot could see at most."""
+    from scipy import ndimage
+
+    labels, _ = ndimage.label(grid.trav)
+    xy, _ = grid.snap(np.asarray(start_xy, dtype=np.float64))
+    if xy is None:
+        xy = np.asarray(start_xy, dtype=np.float64)
+    n, f = grid.n, grid.factor
+    col = int(np.clip(np.floor(xy[0] / grid.resolution + n / 2), 0, n - 1))
+    row = int(np.clip(np.floor(xy[1] / grid.resolution + n / 2), 0, n - 1))
+    lab = labels[row, col]
+    m = grid.free.shape[0]
+    padded = np.zeros((m * f, m * f), dtype=bool)
+    if lab:
+        padded[:n, :n] = labels == lab
+    return padded.reshape(m, f, m, f).any(axis=(1, 3))
 
 
 def pad_curves(curves: Sequence[Sequence[float]], length: int | None = None) -> np.ndarray:

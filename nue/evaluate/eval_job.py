@@ -36,6 +36,12 @@ class RunSettings:
     """sha256 (16 hex digits) of the episode's canonical JSON (:meth:`episode_digest`)."""
     scene: str
     """The house's content hash."""
+    goal_from: str = ""
+    """Exploration benchmark: ``<scene hash>/<episode digest>`` of the other house's episode whose goal photo the
+    agent is given ('' = the episode's own goal). Settings added later carry defaults: a record made before they
+    existed reads as having the default."""
+    explore_only: bool = False
+    """Success never ends the episode (the exploration benchmark)."""
     last_mile: dict | None = None
     """The last-mile wrapper's settings (:meth:`nue.policy.last_mile.LastMileConfig.to_dict`) of a ``sling+``
     method; None otherwise (then left out of the stored form, as in records made before it existed)."""
@@ -58,7 +64,8 @@ class RunSettings:
         if stored is None:
             return ["settings (an older record)"]
         now = self.to_dict()
-        return sorted(k for k in set(now) | set(stored) if stored.get(k) != now.get(k))
+        default = {f.name: f.default for f in dataclasses.fields(self) if f.default is not dataclasses.MISSING}
+        return sorted(k for k in now if stored.get(k, default.get(k)) != now[k])
 
 
 @dataclass(frozen=True)
@@ -89,5 +96,11 @@ class EvalJob:
     """Step limit override (0 = the preset's)."""
     settings: RunSettings
     """What the record stores to be compared on resume."""
+    goal_scene: str = ""
+    """Exploration benchmark: scene folder of the house whose goal photo the agent is given ('' = its own)."""
+    goal_episode: Episode | None = None
+    """Exploration benchmark: the episode (of ``goal_scene``) whose goal photo the agent is given."""
+    explore_only: bool = False
+    """Success never ends the episode; it runs to the step limit."""
     last_mile: Any = None
     """A ``sling+`` method: the :class:`nue.policy.last_mile.LastMileConfig` its agent is wrapped with; else None."""

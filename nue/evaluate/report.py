@@ -28,6 +28,7 @@ from scipy.stats import kendalltau
 from nue.evaluate import coverage as cov
 from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, read_records, record_diagnostics
 from nue.evaluate.metrics import dts, spl, success, unreachable_end
+from nue.evaluate.record_keys import OnDropped
 from nue.evaluate.stats import paired_bootstrap, wilson_interval  # noqa: F401  (re-exported)
 from nue.evaluate.table import (  # noqa: F401  (re-exported)
     DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, method_label, order_methods,
@@ -230,10 +231,14 @@ def format_paired_markdown(diffs: Sequence[PairedDiff]) -> str:
 
 
 # --- files --------------------------------------------------------------------------------------
-def load_records(*paths) -> list[EpisodeRecord]:
+def load_records(*paths, drop_duplicates: bool = False, on_dropped: OnDropped | None = None) -> list[EpisodeRecord]:
     """Records from JSON-lines files (one ``EpisodeRecord.to_dict()`` per line; blank lines skipped),
-    checked by :func:`nue.evaluate.diagnose.read_records` (a bad file or line raises DataError)."""
-    return read_records(*paths)
+    checked by :func:`nue.evaluate.diagnose.read_records` (a bad file or line, or a key recorded twice in a file,
+    raises DataError; ``drop_duplicates`` keeps the first record of each key instead), with the hand-off files
+    beside them attached (:func:`nue.evaluate.handoff_job.load_records_with_handoff`)."""
+    from nue.evaluate.handoff_job import load_records_with_handoff
+
+    return load_records_with_handoff(*paths, drop_duplicates=drop_duplicates, on_dropped=on_dropped)
 
 
 NOTES = (
@@ -258,6 +263,38 @@ def closed_loop_markdown(records: Sequence[EpisodeRecord], task: str = "paper") 
     return f"{format_record_diagnostics(record_diagnostics(records, task))}\n{DIAGNOSTICS_NOTES}\n"
 
 
+HANDOFF_NOTES = (
+    "The goal is *in view* when its grid cell is seen as floor in the current depth frame within 3 m of the robot "
+    "(the exploring expert's switch); search = steps before that, exploitation = steps from it to the end. A failure "
+    "is *found, then lost* when the goal was in view or the robot came within 2 m geodesic of it (from farther away), "
+    "*near, unseen* when it came within 3 m but neither, *never near* otherwise (`nue.evaluate.handoff`). Records "
+    "made before the evaluation measured it carry it in `records_<set>.handoff.jsonl`, recomputed from their "
+    "trajectories (depth re-rendered at the stored 1 cm / 1 mrad poses)."
+)
+
+
+def handoff_markdown(records: Sequence[EpisodeRecord]) -> str:
+    """The hand-off table (:func:`nue.evaluate.handoff.format_handoff_markdown`) per method of the table (canonical
+    names, table order) with its notes; '' when no record carries a hand-off."""
+    from nue.evaluate.handoff import format_handoff_markdown, format_outcome_differences, handoff_summaries, outcome_differences
+
+    key = lambda r: canonical_method(r.method)  # noqa: E731
+    summaries = handoff_summaries(records, method_of=key)
+    if not summaries:
+        return ""
+    ordered = {k: summaries[k] for k in order_methods(summaries)}
+    labels = {k: method_label(k) for k in ordered}
+    text = f"{format_handoff_markdown(ordered, labels)}\n{HANDOFF_NOTES}\n"
+    diffs = outcome_differences(records, method_of=key)
+    if diffs:
+        rank = {k: i for i, k in enumerate(order_methods({d.method for d in diffs}))}
+        diffs = sorted(diffs, key=lambda d: rank[d.method])
+        text += ("\nPaired differences of the failure classes to NUE (the share of episodes, NUE's minus the method's; "
+                 "below 0 = NUE fails that way less often; 95% paired bootstrap over the episodes both ran):\n\n"
+                 f"{format_outcome_differences(diffs, labels)}")
+    return text
+
+
 def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = True, task: str = "paper") -> dict[str, Path]:
     """Write ``table.md`` (table, counts, paired differences, closed-loop diagnostics), ``table.csv`` and
     ``table.tex``.
@@ -271,6 +308,9 @@ def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = Tr
     md = (f"# Table I\n\n{format_markdown(rows, paper)}\n{NOTES}\n\n## Episodes per cell (successes / episodes)\n\n"
           f"{format_counts_markdown(rows)}\n{unreachable_markdown(records)}## Paired differences to NUE\n\n{format_paired_markdown(paired_differences(records))}"
           f"\n## Closed-loop diagnostics\n\n{closed_loop_markdown(records, task)}")
+    handoff = handoff_markdown(records)
+    if handoff:
+        md += f"\n## Exploration -> exploitation hand-off\n\n{handoff}"
     paths = {"table.md": out / "table.md", "table.csv": out / "table.csv", "table.tex": out / "table.tex"}
     paths["table.md"].write_text(md)
     paths["table.csv"].write_text(format_csv(rows, paper))

@@ -12,7 +12,7 @@ from typing import Mapping, Sequence
 
 from nue.evaluate import coverage as cov
 from nue.evaluate.report import (
-    NOTES, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
+    NOTES, handoff_markdown, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
     format_markdown, format_paired_markdown, method_label, paired_differences, paper_table, unreachable_markdown,
 )
 from nue.sim.record import EpisodeRecord
@@ -73,6 +73,9 @@ def set_section_markdown(name: str, records: Sequence[EpisodeRecord], descriptio
     parts += _comparison_parts(rows, paper, records, f" on `{name}`")
     if records:
         parts.append(f"Closed-loop diagnostics on `{name}`:\n\n{closed_loop_markdown(records, task)}")
+    handoff = handoff_markdown(records)
+    if handoff:
+        parts.append(f"Exploration -> exploitation hand-off on `{name}`:\n\n{handoff}")
     return "\n".join(parts)
 
 
@@ -105,8 +108,34 @@ def pooled_section_markdown(sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
     return "\n".join(parts + _comparison_parts(rows, paper, pooled, ", pooled"))
 
 
+def exploration_section_markdown(name: str, records: Sequence[EpisodeRecord], reference: str = "abl_fu") -> str:
+    """RESULTS.md's section of the exploration benchmark from the starts of set ``name`` (:mod:`nue.evaluate.exploration`)."""
+    from nue.evaluate.exploration import exploration_summary, format_exploration_markdown
+
+    rows = exploration_summary(records, reference)
+    starts = len({(r.scene, r.episode_id) for r in records})
+    labels = {r.method: method_label(canonical_method(r.method)) for r in rows}
+    return (f"## Exploration benchmark from `{name}`'s starts\n\nActive Neural SLAM's protocol on our houses: {starts} "
+            f"starts of `{name}`, the goal photo of another house (nothing to find; success never ends a run), seen floor "
+            "area (m², mean and 95% bootstrap interval over the starts), the mean fraction of the start's traversable "
+            f"floor seen, and the ratio of means to {method_label(reference)} (95% paired bootstrap over the starts). "
+            "`expert-explore`: frontier exploration on its own seen map; `random`: uniform random moves.\n\n"
+            f"{format_exploration_markdown(rows, reference, labels)}")
+
+
+def committed_explore(root) -> dict[str, list[EpisodeRecord]]:
+    """The exploration benchmark's committed records, ``results/explore_<set>.jsonl`` -> {set: records}."""
+    from nue.evaluate.report import load_records
+    from nue.sim.episode_sets import EPISODE_SETS
+
+    base = Path(root) / "results"
+    return {name: load_records(base / f"explore_{name}.jsonl") for name in EPISODE_SETS
+            if (base / f"explore_{name}.jsonl").is_file()}
+
+
 def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, object], task: str = "paper",
-                      sets: Mapping[str, Sequence[EpisodeRecord]] | None = None, main_name: str = "") -> str:
+                      sets: Mapping[str, Sequence[EpisodeRecord]] | None = None, main_name: str = "",
+                      explore: Mapping[str, Sequence[EpisodeRecord]] | None = None) -> str:
     """The text of RESULTS.md, a pure function of the records and ``meta``.
 
     ``meta``: ``command``, ``date``, ``commit``, ``machine`` (shown first), any other keys
@@ -114,7 +143,8 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     Table I and stay in the paired differences, coverage and diagnostics. ``sets``: the records of
     further episode sets (name -> records), each given its own section (:func:`set_section_markdown`)
     before the discussion; ``main_name``: the main records' episode set (``val252``), as the pooled section names
-    it (default "Table I's episodes"). Same inputs give the same bytes (the bootstrap is seeded).
+    it (default "Table I's episodes"); ``explore``: the exploration benchmark's records per set of starts (a section
+    each, :func:`exploration_section_markdown`). Same inputs give the same bytes (the bootstrap is seeded).
     """
     current = [r for r in records if not is_earlier_recipe(r.method)]
     earlier = [r for r in records if is_earlier_recipe(r.method)]
@@ -151,6 +181,11 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
                      f"area.\n\n{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
     if records:
         parts.append(f"## Closed-loop diagnostics\n\n{closed_loop_markdown(records, task)}")
+    handoff = handoff_markdown(records)
+    if handoff:
+        parts.append(f"## Exploration -> exploitation hand-off\n\n{handoff}")
+    for name, recs in (explore or {}).items():
+        parts.append(exploration_section_markdown(name, recs))
     if sets:
         from nue.sim.episode_sets import EPISODE_SETS  # descriptions of the committed sets
 

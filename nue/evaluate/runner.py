@@ -2,8 +2,8 @@
 
 Every method runs the same episodes with the same per-episode seeds, through the shared agent loop,
 with its checkpoint's online NeRF memory (fixed initial weights from the checkpoint). Records are
-appended one line at a time (a single ``write`` + ``fsync``); rerunning the command skips the
-episodes already recorded, so a killed evaluation resumes. Local worker processes or Ray tasks, as
+appended one line at a time (a single ``write`` + ``fsync``) by the one process holding the file's lock;
+rerunning the command skips the episodes already recorded, so a killed evaluation resumes. Local worker processes or Ray tasks, as
 in ``nue collect``. ``swap_maps`` feeds a policy the memory maps recorded in a *different* episode of
 the same house (a control that shows whether the memory is used). Each episode of each method travels
 to its worker as an :class:`~nue.evaluate.eval_job.EvalJob`.
@@ -11,6 +11,7 @@ to its worker as an :class:`~nue.evaluate.eval_job.EvalJob`.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -18,11 +19,17 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from nue.errors import CheckpointError, ConfigError, DataError
-from nue.evaluate.coverage import CoverageTracker
+from nue.evaluate.coverage import CoverageTracker, cell_area, explorable_cells
 from nue.evaluate.eval_job import EvalJob, RunSettings
+from nue.evaluate.handoff import HANDOFF_KEY, GoalSightTracker, geodesic_along, handoff
 from nue.jobs import Job, episode_seed, run_jobs, worker_cached
-from nue.policy.agent import ExpertAgent
+from nue.nerf.config import get_memory
+from nue.nerf.online import OnlineNeRF
+from nue.output_lock import hold_output
+from nue.policy.agent import ExpertAgent, RandomAgent
 from nue.policy.last_mile import SLING_PREFIX, LastMileAgent, LastMileConfig
 from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
@@ -30,12 +37,13 @@ from nue.scene.navgrid import NavGrid
 from nue.scene.scene import Scene
 from nue.sim.env import make_env
 from nue.sim.episodes import Episode, read_episodes
-from nue.sim.explorer import ExploringExpert
+from nue.sim.explorer import ExplorerConfig, ExploringExpert
 from nue.sim.task import get_task
 from nue.train.checkpoint import PolicyHeader, check_compatible, load_agent, load_header
 
-EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore"}
-"""Method specs that run an expert instead of a checkpoint -> ``ExpertAgent(kind=...)``."""
+EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore", "expert-uncertainty": "uncertainty", "random": "random"}
+"""Method specs that run an expert (or the random walk) instead of a checkpoint -> ``ExpertAgent(kind=...)``
+(``random``: :class:`~nue.policy.agent.RandomAgent`)."""
 
 
 @dataclass(frozen=True)
@@ -112,12 +120,7 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
     files = episode_files(cfg.episodes_dir)
     jobs = []
     for f in files:
-        name = f.name.removesuffix(".gz").removesuffix(".json")
-        try:
-            split, index = name.rsplit("_", 1)  # <split>_<NN>: a generated house of that split
-            folder = ensure_house(split if split in SPLITS else cfg.split, int(index), cfg.scenes_root)
-        except (ValueError, IndexError):
-            folder = Path(cfg.scenes_root) / name
+        folder = house_folder(f.name.removesuffix(".gz").removesuffix(".json"), cfg.scenes_root, cfg.split)
         scene = Scene.load(folder)
         for ckpt, (header, _) in checked.items():  # a house whose content changed since training is refused here
             check_compatible(header, ckpt, scenes={scene.name: scene.content_hash})
@@ -138,6 +141,17 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
                     seed=episode_seed(cfg.seed, scene.name, ep.episode_id), device=cfg.device, coverage=cfg.coverage,
                     max_steps=cfg.max_steps, settings=settings, last_mile=last_mile)))
     return jobs
+
+
+def house_folder(name: str, scenes_root, split: str = "val") -> Path:
+    """The scene folder of an episode file's or record's house ``name``: ``<split>_<NN>`` of a known split (else of
+    ``split``) is that split's generated house NN (generated under ``scenes_root`` if missing); any other name is
+    the folder ``scenes_root/name``."""
+    try:
+        prefix, index = name.rsplit("_", 1)  # <split>_<NN>: a generated house of that split
+        return ensure_house(prefix if prefix in SPLITS else split, int(index), scenes_root)
+    except (ValueError, IndexError):
+        return Path(scenes_root) / name
 
 
 def checked_checkpoint(path: str, task: str) -> tuple[PolicyHeader, str]:
@@ -241,14 +255,17 @@ def append_record(path: Path, record: dict) -> None:
 
 def run_eval(methods: list[str], out, cfg: EvalConfig, workers: int = 1, ray_address: str | None = None,
              progress: bool = True, skipped: list | None = None) -> Path:
-    """Evaluate ``methods`` (checkpoint paths, ``name=path`` or ``expert``); records appended to ``out``.
+    """Evaluate ``methods`` (checkpoint paths, ``name=path`` or ``expert``); records appended to ``out``, which
+    this process holds for the whole run (:func:`~nue.output_lock.hold_output`: a second writer stops at once).
     Episodes left out by ``cfg.skip_invalid`` are appended to ``skipped``."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    jobs = plan_eval(methods, cfg, skipped)
-    done = check_resumable(out, jobs)
-    run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
-             is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="eval", progress=progress)
+    with hold_output(out):
+        jobs = plan_eval(methods, cfg, skipped)
+        done = check_resumable(out, jobs)
+        run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
+                 is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="eval",
+                 progress=progress)
     return out
 
 
@@ -287,7 +304,10 @@ def eval_episode(job: Job) -> dict:
     env = _env(p)
     extra = {"key": job.key, "seed": p.seed, "checkpoint": p.checkpoint, "settings": p.settings.to_dict()}
     if p.checkpoint is None:
-        agent, memory = ExpertAgent(kind=p.expert or "geodesic"), None
+        agent, memory = _expert_agent(p), None
+        if p.expert == "uncertainty":  # it reads its own memory's panorama (default initial weights)
+            memory = worker_cached(("memory", "fast_pano", p.device, env.task.name), lambda: OnlineNeRF(
+                get_memory("fast_pano"), env.task.camera, device=p.device))
     else:
         agent, memory = _policy(p, env)
         extra["git_commit"] = agent.git_commit
@@ -296,19 +316,44 @@ def eval_episode(job: Job) -> dict:
         if p.last_mile is not None:
             agent = LastMileAgent(agent, p.last_mile)
     tracker = CoverageTracker(env.task.camera, env.navgrid, env.floor_z) if p.coverage else None
+    sight = GoalSightTracker()
+    options: dict = {"explore_only": True} if p.explore_only else {}
+    if p.goal_episode is not None:
+        other = _env(dataclasses.replace(p, scene=p.goal_scene))
+        options["goal_image"], _ = other.renderer.render(p.goal_episode.goal_pose, other.floor_z)
+    if p.explore_only and tracker is not None:
+        tracker.region = explorable_cells(env.navgrid, p.episode.start_pose[:2])
+        extra["explorable_area"] = round(cell_area(env.navgrid) * float(np.count_nonzero(tracker.region)), 3)
     t0 = time.perf_counter()
-    record = run_episode(env, agent, episode=p.episode, memory=memory, seed=p.seed, on_step=tracker, method=p.method)
+    record = run_episode(env, agent, episode=p.episode, memory=memory, seed=p.seed, method=p.method,
+                         on_step=sight if tracker is None else lambda step: (tracker(step), sight(step)),
+                         reset_options=options)
     extra["wall_time"] = time.perf_counter() - t0
+    if not p.explore_only:
+        extra[HANDOFF_KEY] = handoff(geodesic_along(record.trajectory().poses, env.navgrid, env.goal_field),
+                                     sight.first_seen_step, record.success).to_dict()
     if isinstance(getattr(agent, "expert", None), ExploringExpert):
         extra["explorer"] = dict(agent.expert.stats)
     if isinstance(agent, LastMileAgent):
         extra["last_mile"] = agent.summary(goal_xy=env.goal_xy)  # the true goal: for the record's analysis only
     if tracker is not None:
         extra["coverage"] = [round(float(a), 3) for a in tracker.areas]
+        if tracker.region is not None:
+            extra["coverage_explorable"] = [round(float(a), 3) for a in tracker.region_areas]
     d = record.to_dict()
     d["extra"] = {**d["extra"], **extra}
     d["wall_time"] = extra["wall_time"]
     return d
+
+
+def _expert_agent(job: EvalJob):
+    """The expert (or random walk) of an expert method; in the exploration benchmark the exploring expert never
+    sees the goal (it is in another house) and explores for the whole run."""
+    if job.expert == "random":
+        return RandomAgent()
+    if job.explore_only and job.expert == "explore":
+        return ExpertAgent(kind="explore", explorer=ExplorerConfig(view_range=-1.0, max_explore_steps=10**9))
+    return ExpertAgent(kind=job.expert or "geodesic")
 
 
 def _record_maps(env, memory, job: EvalJob) -> list:

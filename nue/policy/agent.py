@@ -3,7 +3,7 @@
 :class:`ExpertAgent` (geodesic or exploring expert), :class:`PolicyAgent` (a trained network: the same
 ``prepare_input`` as in training turns the raw observation and the NeRF maps into its input; the
 recurrent state of Nav-A3C is carried across steps and reset per episode), :class:`MixedAgent`
-(DAgger's mix) and :class:`NoisyAgent` (DART noise injection).
+(DAgger's mix), :class:`NoisyAgent` (DART noise injection) and :class:`RandomAgent` (a random walk).
 """
 
 from __future__ import annotations
@@ -13,12 +13,14 @@ import torch
 
 from nue.policy.base import PolicyModel, choose_actions
 from nue.policy.inputs import prepare_goal, prepare_input
+from nue.policy.uncertainty_expert import UncertaintyExpert
 from nue.sim.env import ImageNavEnv
 from nue.sim.expert import ExpertConfig, GeodesicExpert
 from nue.sim.explorer import ExplorerConfig, ExploringExpert
 
-EXPERT_KINDS = ("geodesic", "explore")
-"""``ExpertAgent(kind=...)``: the geodesic expert, or the exploring expert (``nue.sim.explorer``)."""
+EXPERT_KINDS = ("geodesic", "explore", "uncertainty")
+"""``ExpertAgent(kind=...)``: the geodesic expert, the exploring expert (``nue.sim.explorer``), or the
+uncertainty-seeking expert (:mod:`nue.policy.uncertainty_expert`; needs a memory whose maps carry a panorama)."""
 
 
 class ExpertAgent:
@@ -44,6 +46,8 @@ class ExpertAgent:
             if self.kind == "explore":
                 self.expert = ExploringExpert(env.navgrid, env.task, self.explorer_config or ExplorerConfig(),
                                               self.config, floor_z=env.floor_z)
+            elif self.kind == "uncertainty":
+                self.expert = UncertaintyExpert(env.navgrid, env.task, expert_config=self.config, floor_z=env.floor_z)
             else:
                 self.expert = GeodesicExpert(env.navgrid, env.task, self.config)
         self.expert.reset(env.nav_goal_xy)
@@ -51,11 +55,29 @@ class ExpertAgent:
     def act(self, obs, maps) -> int:
         if self.kind == "explore":
             return self.expert.act(obs["pose"], obs["depth"])
+        if self.kind == "uncertainty":
+            panorama = getattr(maps, "panorama", None)
+            if panorama is None:
+                raise ValueError("the uncertainty expert needs memory maps with a panorama (a memory preset with "
+                                 "panorama_headings > 0, e.g. fast_pano)")
+            return self.expert.act(obs["pose"], obs["depth"], panorama)
         return self.expert.act(obs["pose"])
 
     def executed(self, action: int) -> None:
         """Told by a wrapper (noise injection) which action was actually executed this step."""
         self.expert.executed(action)
+
+
+class RandomAgent:
+    """A random walk: each step a move drawn uniformly from the task's actions except STOP, seeded per episode
+    (the exploration benchmark's lower reference)."""
+
+    def reset(self, env, obs, seed: int = 0) -> None:
+        self.moves = np.array([i for i, a in enumerate(env.task.actions) if a != "STOP"], dtype=np.int64)
+        self.rng = np.random.default_rng(np.random.SeedSequence([seed, 4]))
+
+    def act(self, obs, maps) -> int:
+        return int(self.rng.choice(self.moves))
 
 
 class PolicyAgent:

@@ -107,6 +107,10 @@ class ImageNavEnv(gym.Env):
         self.snap = {k: round(v, 6) for k, v in (("start_snap", start_snap), ("goal_snap", goal_snap)) if v > 0}
         """Metres the start / goal were snapped to navigable cells (only those that were), for the record."""
         self.goal_image, _ = self.renderer.render(ep.goal_pose, self.floor_z)
+        if "goal_image" in options:  # e.g. a photo from another house: the exploration benchmark's nothing-to-find goal
+            self.goal_image = np.array(options["goal_image"], dtype=np.uint8).reshape(self.goal_image.shape)
+        self.explore_only = bool(options.get("explore_only", False))
+        """Success never ends the episode (nor counts): it runs to the step limit (the exploration benchmark)."""
         self.steps = 0
         self.collisions = 0
         self.path_length = 0.0
@@ -149,7 +153,10 @@ class ImageNavEnv(gym.Env):
         prev_geo = self._geo
         self._geo = self.navgrid.lookup(self._field, self.pose[:2])
         inside = self._distance_for_success() <= self.task.success_radius
-        if self.task.success_requires_stop:
+        if self.explore_only:
+            terminated = False
+            self.success = False
+        elif self.task.success_requires_stop:
             terminated = stop
             self.success = stop and inside
         else:
@@ -178,6 +185,11 @@ class ImageNavEnv(gym.Env):
     @property
     def geodesic_distance(self) -> float:
         return float(self._geo)
+
+    @property
+    def goal_field(self) -> np.ndarray:
+        """(M, M) geodesic distance to the episode's navigation goal on ``navgrid``'s cells, metres (inf = unreachable)."""
+        return self._field
 
     def goal_angle(self) -> float:
         """Signed angle from the heading to the goal direction, positive = goal to the left, in (-pi, pi]."""

@@ -51,6 +51,12 @@ class CoverageConfig:
     """:func:`seen_obstacle_cells`: a point at least this high above the floor is an obstacle, metres."""
     obstacle_max_height: float = 1.5
     """:func:`seen_obstacle_cells`: points higher than this (ceilings, door lintels) are ignored, metres."""
+    occlusion_rows: float | None = 0.5
+    """A cell whose centre projects onto a floor-seeing pixel counts only if that pixel's depth is within
+    ``floor_tolerance`` plus this many pixel rows' floor span of the centre's own depth. The centre projects within
+    half a pixel of the pixel's centre, so true floor passes at 0.5; the foot of a wall (which sees "floor" within
+    the tolerance) does not pass for the floor behind the wall that projects onto it. None = no depth check (as
+    seen cells were counted before: floor up to ~1 m behind walls, and under them, counted as seen)."""
 
 
 def cell_area(grid: GridLike) -> float:
@@ -213,6 +219,13 @@ def _floor_mask(frame: _Frame, pose, camera: CameraConfig, grid: GridLike, floor
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
     sees = np.zeros(front.size, dtype=bool)
     sees[inside] = floor_px[v[inside], u[inside]]
+    if config.occlusion_rows is not None and sees.any():
+        # one pixel row spans (z² + h²) / (h fy) metres of floor at z-depth z for a level camera h above the floor
+        k = np.flatnonzero(sees)
+        zc = pf[k, 2]
+        h_cam = max(float(m[2, 3]) - floor_z, 1e-3)
+        tol = config.floor_tolerance + config.occlusion_rows * (zc * zc + h_cam * h_cam) / (h_cam * camera.fy)
+        sees[k] = np.abs(frame.z[v[k], u[k]] - zc) <= tol
     cells = sel[front[sees]]
     box_cols = hi[1] - lo[1] + 1
     mask[lo[0] + cells // box_cols, lo[1] + cells % box_cols] = True
@@ -246,3 +259,12 @@ def seen_cells(depth: np.ndarray, pose, camera: CameraConfig, grid: GridLike, fl
     """``(seen_floor_cells(...), seen_obstacle_cells(...))`` of one frame, back-projecting it once."""
     frame = _Frame(depth, pose, camera, floor_z)
     return _floor_mask(frame, pose, camera, grid, floor_z, config), _obstacle_mask(frame, pose, grid, floor_z, config)
+
+
+def goal_in_view(depth: np.ndarray, pose, goal_cell: tuple[int, int], goal_xy, camera: CameraConfig, grid: GridLike,
+                 floor_z: float = 0.0, view_range: float = 3.0, config: CoverageConfig = CoverageConfig()) -> bool:
+    """Whether the goal is in view from ``pose`` (x, y, yaw): the robot is at most ``view_range`` metres from ``goal_xy``
+    and ``depth`` (H, W[, 1]) metres sees the floor of ``goal_cell`` (row, col) — the exploring expert's switch."""
+    if float(np.hypot(pose[0] - goal_xy[0], pose[1] - goal_xy[1])) > view_range:
+        return False
+    return bool(seen_floor_cells(depth, pose, camera, grid, floor_z, config)[goal_cell])

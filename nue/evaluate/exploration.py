@@ -1,0 +1,216 @@
+"""``nue explore``: the exploration benchmark, after Active Neural SLAM's protocol (Chaplot et al., ICLR 2020), on
+our houses: seen floor area over a fixed number of steps when there is nothing to find.
+
+Each run starts from a goal episode's start pose (e.g. val252's), and the agent is given the goal photo of the
+same-numbered episode of the *next* house of the set (house i gets house i + 1's, the last the first's): a real
+goal photo that matches nothing in this house. Success never ends the run (``explore_only``), so every run lasts
+``steps`` steps, and the seen floor area (:class:`~nue.evaluate.coverage.CoverageTracker`, m²) after every step
+is recorded (``coverage``), and the seen area within the floor the robot could see at most (``coverage_explorable``;
+that floor is the traversable region of the start, :func:`~nue.evaluate.coverage.explorable_cells`, of area
+``explorable_area``). :func:`exploration_summary` reports the mean seen area and fraction at 100 / 200 / 500 / 800 steps and
+the ratio of each method's mean to a reference method's, with a paired bootstrap over the starts. Runs go through
+the evaluation's jobs and records (:mod:`nue.evaluate.runner`): resumable, refusing other settings. References:
+``expert-explore`` (frontier exploration on its own seen map, never switching to a goal) and ``random``
+(uniform random moves).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from nue.errors import ConfigError
+from nue.evaluate.coverage import COVERAGE_KEY, pad_curves
+from nue.evaluate.eval_job import EvalJob, RunSettings
+from nue.evaluate.stats import paired_bootstrap
+from nue.jobs import Job, episode_seed, run_jobs
+from nue.output_lock import hold_output
+from nue.sim.episodes import Episode, read_episodes
+from nue.sim.record import EpisodeRecord
+
+REPORT_STEPS = (100, 200, 500, 800)
+"""Steps at which the summary reports the seen area."""
+
+
+@dataclass(frozen=True)
+class ExploreConfig:
+    """An exploration benchmark run."""
+
+    episodes_dir: str = "episodes/val252"
+    """Folder of episode files, one per house (``<house>.json``): their start poses are the runs' starts."""
+    scenes_root: str = "data/scenes"
+    """Where the houses are (generated from their fixed seeds if missing)."""
+    split: str = "val"
+    """House split of episode files whose name does not say it."""
+    task: str = "paper"
+    """Task preset (camera, actions); its step limit is replaced by ``steps``."""
+    seed: int = 0
+    """Base seed; each run's seed is derived from it and the episode's key."""
+    device: str = "cpu"
+    """Device of policy and memory in the workers."""
+    steps: int = 800
+    """Steps of every run."""
+    per_bin: int = 0
+    """Use only the first N episodes of each difficulty bin of each house (0 = all)."""
+
+
+def _subset(episodes: Sequence[Episode], per_bin: int) -> list[int]:
+    """Indices of the first ``per_bin`` episodes of each difficulty bin (all for 0), in file order."""
+    taken: dict[str, int] = {}
+    out = []
+    for i, ep in enumerate(episodes):
+        if not per_bin or taken.get(ep.difficulty, 0) < per_bin:
+            taken[ep.difficulty] = taken.get(ep.difficulty, 0) + 1
+            out.append(i)
+    return out
+
+
+def plan_explore(methods: list[str], cfg: ExploreConfig) -> list[Job]:
+    """One job per (start, method); keys ``<method>/<house>/<episode id>``."""
+    from nue.evaluate.runner import EXPERT_METHODS, checked_checkpoint, episode_files, house_folder, parse_method
+    from nue.scene.scene import Scene
+    from nue.train.checkpoint import check_compatible
+
+    if cfg.steps <= 0:
+        raise ConfigError("--steps", "must be positive")
+    parsed = [parse_method(m) for m in methods]
+    names = [n for n, _ in parsed]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ConfigError("--checkpoint", f"method name {twice[0]!r} given twice; name them apart with name=path")
+    checked = {ckpt: checked_checkpoint(ckpt, cfg.task) for _, ckpt in parsed if ckpt is not None}
+    houses = []
+    for f in episode_files(cfg.episodes_dir):
+        folder = house_folder(f.name.removesuffix(".gz").removesuffix(".json"), cfg.scenes_root, cfg.split)
+        scene = Scene.load(folder)
+        for ckpt, (header, _) in checked.items():
+            check_compatible(header, ckpt, scenes={scene.name: scene.content_hash})
+        houses.append((folder, scene, read_episodes(f, scene, cfg.task).episodes))
+    if len(houses) < 2:
+        raise ConfigError("--episodes-dir", f"{cfg.episodes_dir}: needs at least two houses (goal photos come from another one)")
+    jobs = []
+    for h, (folder, scene, episodes) in enumerate(houses):
+        g_folder, g_scene, g_eps = houses[(h + 1) % len(houses)]
+        for i in _subset(episodes, cfg.per_bin):
+            ep, goal = episodes[i], g_eps[i % len(g_eps)]
+            goal_from = f"{g_scene.content_hash}/{RunSettings.episode_digest(goal)}"
+            for method, ckpt in parsed:
+                settings = RunSettings(agent=checked[ckpt][1] if ckpt else method, task=cfg.task, max_steps=cfg.steps,
+                                       seed=cfg.seed, swap_maps=False, coverage=True,
+                                       episode=RunSettings.episode_digest(ep), scene=scene.content_hash,
+                                       goal_from=goal_from, explore_only=True)
+                jobs.append(Job(f"{method}/{scene.name}/{ep.episode_id}", EvalJob(
+                    method=method, checkpoint=ckpt, expert=EXPERT_METHODS.get(method, "") if ckpt is None else "",
+                    scene=str(folder), episode=ep, other=None, task=cfg.task,
+                    seed=episode_seed(cfg.seed, scene.name, ep.episode_id), device=cfg.device, coverage=True,
+                    max_steps=cfg.steps, settings=settings, goal_scene=str(g_folder), goal_episode=goal,
+                    explore_only=True)))
+    return jobs
+
+
+def run_explore(methods: list[str], out, cfg: ExploreConfig, workers: int = 1, ray_address: str | None = None,
+                progress: bool = True) -> Path:
+    """Run the benchmark for ``methods`` (checkpoints, ``name=path``, ``expert-explore``, ``random``); records
+    appended to ``out`` (resumes; refuses records of other settings), which this process holds meanwhile
+    (:func:`~nue.output_lock.hold_output`: a second writer stops at once)."""
+    from nue.evaluate.runner import append_record, check_resumable, eval_episode
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with hold_output(out):
+        jobs = plan_explore(methods, cfg)
+        done = check_resumable(out, jobs)
+        run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
+                 is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="explore",
+                 progress=progress)
+    return out
+
+
+@dataclass(frozen=True)
+class ExplorationRow:
+    """One method's seen area at the report steps."""
+
+    method: str
+    runs: int
+    area: dict
+    """Step -> mean seen floor area, m²."""
+    area_ci: dict
+    """Step -> (lo, hi) 95% bootstrap interval of the mean, m²."""
+    fraction: dict
+    """Step -> mean over the runs of (seen area within the explorable floor) / (explorable floor area)."""
+    ratio: dict
+    """Step -> (ratio of means to the reference, lo, hi) over the starts both ran (paired bootstrap); {} for the
+    reference itself or without one."""
+
+
+def _curves(records: Sequence[EpisodeRecord], steps: int) -> dict[str, dict[str, np.ndarray]]:
+    by: dict[str, dict[str, np.ndarray]] = {}
+    for r in records:
+        cov = r.extra.get(COVERAGE_KEY)
+        if cov is None:
+            continue
+        key = f"{r.scene}/{r.episode_id}"
+        by.setdefault(r.method, {})[key] = pad_curves([cov], steps)[0]
+    return by
+
+
+def _ratio_ci(a: np.ndarray, b: np.ndarray, n_boot: int = 10_000, seed: int = 0) -> tuple[float, float, float]:
+    """Ratio of means mean(a) / mean(b) of paired runs and its percentile bootstrap interval (rows resampled)."""
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(a), size=(n_boot, len(a)))
+    ratios = a[idx].mean(axis=1) / np.maximum(b[idx].mean(axis=1), 1e-12)
+    lo, hi = np.quantile(ratios, [0.025, 0.975])
+    return float(a.mean() / max(b.mean(), 1e-12)), float(lo), float(hi)
+
+
+def exploration_summary(records: Sequence[EpisodeRecord], reference: str = "abl_fu",
+                        steps: Sequence[int] = REPORT_STEPS) -> list[ExplorationRow]:
+    """Per method (sorted), the :class:`ExplorationRow` at ``steps`` within the runs' length, and at that length."""
+    length = max((len(r.extra.get(COVERAGE_KEY) or []) for r in records), default=0)
+    steps = sorted({s for s in (*steps, length) if 0 < s <= length})
+    curves = _curves(records, length)
+    fractions: dict[str, dict[str, np.ndarray]] = {}
+    for r in records:
+        inside, total = r.extra.get("coverage_explorable"), r.extra.get("explorable_area")
+        if inside is not None and total:
+            fractions.setdefault(r.method, {})[f"{r.scene}/{r.episode_id}"] = pad_curves([inside], length)[0] / total
+    ref = curves.get(reference)
+    rows = []
+    for m in sorted(curves):
+        keys = sorted(curves[m])
+        c = np.stack([curves[m][k] for k in keys])
+        f = np.stack([fractions.get(m, {}).get(k, np.full(length, np.nan)) for k in keys])
+        area, ci, frac, ratio = {}, {}, {}, {}
+        for s in steps:
+            v = c[:, s - 1]
+            mean, lo, hi = paired_bootstrap(v)
+            area[s], ci[s] = float(mean[0]), (float(lo[0]), float(hi[0]))
+            frac[s] = float(np.nanmean(f[:, s - 1])) if np.isfinite(f[:, s - 1]).any() else float("nan")
+            if ref is not None and m != reference:
+                both = [k for k in keys if k in ref]
+                if both:
+                    ratio[s] = _ratio_ci(np.array([curves[m][k][s - 1] for k in both]),
+                                         np.array([ref[k][s - 1] for k in both]))
+        rows.append(ExplorationRow(m, len(keys), area, ci, frac, ratio))
+    return rows
+
+
+def format_exploration_markdown(rows: Sequence[ExplorationRow], reference: str = "abl_fu",
+                                labels: Mapping[str, str] | None = None) -> str:
+    """Markdown table: per method and report step the mean seen area (95% interval), the mean fraction of the
+    explorable area, and the ratio to ``reference`` (95% paired bootstrap)."""
+    steps = sorted({s for r in rows for s in r.area})
+    head = "| method | runs | " + " | ".join(f"step {s}: m² (95%), fraction, ratio to {reference}" for s in steps) + " |"
+    lines = [head, "|" + "---|" * (len(steps) + 2)]
+    for r in rows:
+        cells = []
+        for s in steps:
+            lo, hi = r.area_ci[s]
+            ratio = r.ratio.get(s)
+            rt = "–" if ratio is None else f"{ratio[0]:.2f} [{ratio[1]:.2f}, {ratio[2]:.2f}]"
+            cells.append(f"{r.area[s]:.1f} [{lo:.1f}, {hi:.1f}], {r.fraction[s]:.2f}, {rt}")
+        lines.append(f"| {(labels or {}).get(r.method, r.method)} | {r.runs} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
