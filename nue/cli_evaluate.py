@@ -88,7 +88,8 @@ EVAL = ConfigOptions(
 
 @config_command
 def eval_cmd(
-    method: list[str] = typer.Option(..., "--checkpoint", "-c", help="Checkpoint path, name=path, or 'expert'; repeatable."),
+    method: list[str] = typer.Option(..., "--checkpoint", "-c", help="Checkpoint path, name=path, 'expert', 'expert-explore', "
+                                     "or sling+name=path (the checkpoint with the last-mile wrapper); repeatable."),
     out: Path = typer.Option(Path("results/records.jsonl"), help="JSON-lines file the records are appended to."),
     cfg: EvalConfig = EVAL,
     workers: int = WORKERS,

@@ -42,6 +42,9 @@ class RunSettings:
     existed reads as having the default."""
     explore_only: bool = False
     """Success never ends the episode (the exploration benchmark)."""
+    last_mile: dict | None = None
+    """The last-mile wrapper's settings (:meth:`nue.policy.last_mile.LastMileConfig.to_dict`) of a ``sling+``
+    method; None otherwise (then left out of the stored form, as in records made before it existed)."""
 
     @staticmethod
     def episode_digest(episode: Episode) -> str:
@@ -49,8 +52,11 @@ class RunSettings:
         return hashlib.sha256(json.dumps(dataclasses.asdict(episode), sort_keys=True).encode()).hexdigest()[:16]
 
     def to_dict(self) -> dict:
-        """The record's ``extra['settings']``."""
-        return dataclasses.asdict(self)
+        """The record's ``extra['settings']`` (``last_mile`` only when set)."""
+        d = dataclasses.asdict(self)
+        if d["last_mile"] is None:
+            del d["last_mile"]
+        return d
 
     def differences(self, stored: Mapping[str, Any] | None) -> list[str]:
         """Sorted names of the settings in which a record's stored ``extra['settings']`` differs from these
@@ -96,3 +102,5 @@ class EvalJob:
     """Exploration benchmark: the episode (of ``goal_scene``) whose goal photo the agent is given."""
     explore_only: bool = False
     """Success never ends the episode; it runs to the step limit."""
+    last_mile: Any = None
+    """A ``sling+`` method: the :class:`nue.policy.last_mile.LastMileConfig` its agent is wrapped with; else None."""

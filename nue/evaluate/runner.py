@@ -30,6 +30,7 @@ from nue.nerf.config import get_memory
 from nue.nerf.online import OnlineNeRF
 from nue.output_lock import hold_output
 from nue.policy.agent import ExpertAgent, RandomAgent
+from nue.policy.last_mile import SLING_PREFIX, LastMileAgent, LastMileConfig
 from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
 from nue.scene.navgrid import NavGrid
@@ -74,13 +75,22 @@ class EvalConfig:
     """Override the preset's step limit (0 = keep it); for smoke runs only — records are not comparable."""
     skip_invalid: bool = False
     """Leave out episodes that cannot run (listed by :func:`plan_eval`) instead of refusing their file."""
+    last_mile: LastMileConfig = LastMileConfig()
+    """Settings of the last-mile wrapper of ``sling+<name>`` methods (stored in their records' settings)."""
 
 
 def parse_method(spec: str) -> tuple[str, str | None]:
     """``name=path``, ``path`` (name from the checkpoint's model config), ``expert`` (the geodesic expert)
-    or ``expert-explore`` (the exploring expert, ``nue.sim.explorer``)."""
+    or ``expert-explore`` (the exploring expert, ``nue.sim.explorer``). ``sling+name=path`` or ``sling+path``:
+    the checkpoint wrapped in the last-mile agent (:class:`~nue.policy.last_mile.LastMileAgent`), named
+    ``sling+<name>``."""
     if spec in EXPERT_METHODS:
         return spec, None
+    if spec.startswith(SLING_PREFIX) and "=" not in spec:
+        path = spec[len(SLING_PREFIX):]
+        if not path.strip():
+            raise ConfigError("--checkpoint", f"{spec!r}: expected {SLING_PREFIX}name=path or {SLING_PREFIX}path")
+        return SLING_PREFIX + load_header(path).name, path
     if "=" in spec:
         name, path = spec.split("=", 1)
         if not name.strip() or not path.strip():
@@ -122,12 +132,13 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
         for i, ep in enumerate(eps):
             other = eps[(i + 1) % len(eps)] if cfg.swap_maps else None
             for method, ckpt in parsed:
-                settings = run_settings(cfg, digests.get(ckpt, method), ep, scene.content_hash)
+                last_mile = cfg.last_mile if method.startswith(SLING_PREFIX) and ckpt is not None else None
+                settings = run_settings(cfg, digests.get(ckpt, method), ep, scene.content_hash, last_mile)
                 jobs.append(Job(f"{method}{swap}/{scene.name}/{ep.episode_id}", EvalJob(
                     method=method + swap, checkpoint=ckpt, expert=EXPERT_METHODS.get(method, "") if ckpt is None else "",
                     scene=str(folder), episode=ep, other=other, task=cfg.task,
                     seed=episode_seed(cfg.seed, scene.name, ep.episode_id), device=cfg.device, coverage=cfg.coverage,
-                    max_steps=cfg.max_steps, settings=settings)))
+                    max_steps=cfg.max_steps, settings=settings, last_mile=last_mile)))
     return jobs
 
 
@@ -185,11 +196,14 @@ def file_sha256(path: str) -> str:
     return h.hexdigest()[:16]
 
 
-def run_settings(cfg: EvalConfig, agent: str, episode: Episode, scene_hash: str) -> RunSettings:
+def run_settings(cfg: EvalConfig, agent: str, episode: Episode, scene_hash: str,
+                 last_mile: LastMileConfig | None = None) -> RunSettings:
     """The :class:`RunSettings` of one episode of a run: the checkpoint's content hash (or the expert's
-    name), task preset, step limit, seed, maps swap, coverage, the episode itself and the scene's content hash."""
+    name), task preset, step limit, seed, maps swap, coverage, the episode itself, the scene's content hash and
+    the last-mile wrapper's settings (``sling+`` methods)."""
     return RunSettings(agent=agent, task=cfg.task, max_steps=cfg.max_steps, seed=cfg.seed, swap_maps=cfg.swap_maps,
-                       coverage=cfg.coverage, episode=RunSettings.episode_digest(episode), scene=scene_hash)
+                       coverage=cfg.coverage, episode=RunSettings.episode_digest(episode), scene=scene_hash,
+                       last_mile=None if last_mile is None else last_mile.to_dict())
 
 
 def recorded_settings(path: Path) -> dict[str, dict | None]:
@@ -325,6 +339,8 @@ def eval_episode(job: Job) -> dict:
         extra["git_commit"] = agent.git_commit
         if p.other is not None and memory is not None:
             memory = MapReplay(_record_maps(env, memory, p))
+        if p.last_mile is not None:
+            agent = LastMileAgent(agent, p.last_mile)
     tracker = CoverageTracker(env.task.camera, env.navgrid, env.floor_z) if p.coverage else None
     sight = GoalSightTracker()
     options: dict = {"explore_only": True} if p.explore_only else {}
@@ -344,6 +360,8 @@ def eval_episode(job: Job) -> dict:
                                      sight.first_seen_step, record.success).to_dict()
     if isinstance(getattr(agent, "expert", None), ExploringExpert):
         extra["explorer"] = dict(agent.expert.stats)
+    if isinstance(agent, LastMileAgent):
+        extra["last_mile"] = agent.summary(goal_xy=env.goal_xy)  # the true goal: for the record's analysis only
     if tracker is not None:
         extra["coverage"] = [round(float(a), 3) for a in tracker.areas]
         if tracker.region is not None:
