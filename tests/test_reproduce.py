@@ -18,7 +18,8 @@ from nue.cli import main
 from nue.errors import ConfigError
 from nue.evaluate.report import load_records
 from nue.recipe import RECIPES, TABLE_I_MODELS, StepPlan, estimate, format_estimate, get_recipe
-from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, _run_training, plan_stages, reproduce, train_config
+from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, plan_stages, reproduce, train_config
+from nue.reproduce_train import run_training
 from nue.train.checkpoint import load_policy
 
 EPISODES = Path(__file__).resolve().parents[1] / "episodes"
@@ -65,10 +66,11 @@ def test_quick_run_prints_its_estimate_and_reaches_results(run):
     assert all(RunFolders(out, Path(), Path()).marker(s).is_file() for s in stages)
     records = {name: load_records(out / "records" / f"{name}.jsonl") for name in ("val252", "val_plain", "val252+swap",
                                                                                 "val_plain+swap")}
-    methods = {*TABLE_I_MODELS, "expert"}
+    methods = {*TABLE_I_MODELS, "nue@s1", "expert"}  # the quick recipe trains NUE with 2 seeds
     assert {r.method for r in records["val252"]} == methods == {r.method for r in records["val_plain"]}
     assert {r.scene for r in records["val252"]} == {"val_00"} and {r.scene for r in records["val_plain"]} == {"val_plain_00"}
-    assert {r.method for r in records["val252+swap"]} == {"nue+swap"} == {r.method for r in records["val_plain+swap"]}
+    swapped = {"nue+swap", "nue@s1+swap"}
+    assert {r.method for r in records["val252+swap"]} == swapped == {r.method for r in records["val_plain+swap"]}
     assert {r.scene for r in records["val_plain+swap"]} == {"val_plain_00"}
     results = (out / "RESULTS.md").read_text()
     assert "## Table I: ours next to the paper" in results and "nue reproduce --recipe quick" in results
@@ -118,7 +120,7 @@ def test_a_recipe_with_dagger_rounds_trains_through_them(run, tmp_path):
     folders.out.mkdir()
     (folders.out / "demos").symlink_to(out / "demos", target_is_directory=True)
     done = {}
-    _run_training(recipe, folders, ["train/fr"], workers=1, ray_address=None, device="cpu", progress=False,
+    run_training(recipe, folders, ["train/fr"], workers=1, ray_address=None, device="cpu", progress=False,
                   finish=lambda stage, seconds, result: done.update({stage: result}))
     rounds = done["train/fr"]["rounds"]
     assert [r["round"] for r in rounds] == [0, 1] and rounds[1]["beta"] == 0.5
@@ -223,7 +225,7 @@ def test_a_resumed_run_estimates_only_what_is_left(tmp_path):
     folders.records("eval/val252").write_text("{}\n" * (runs // 4))  # a quarter of the runs recorded
     left = {s.stage: s for s in remaining_estimate(v6, folders, 2)}
     assert left["scenes"].done and left["collect"].done and left["scenes"].seconds == left["collect"].seconds == 0
-    two_models = {s.stage: s for s in estimate(v6, 2, models=v6.models[6:])}["train"].seconds
+    two_models = {s.stage: s for s in estimate(v6, 2, runs=v6.models[6:])}["train"].seconds
     assert not left["train"].done and left["train"].seconds == two_models < fresh["train"].seconds
     assert "6 trained earlier" in left["train"].detail
     assert left["eval/val252"].seconds == pytest.approx(0.75 * fresh["eval/val252"].seconds)
