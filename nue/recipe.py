@@ -263,10 +263,11 @@ run trained on different days unequal ones). 256k samples = 4,000 steps of 64: N
 76.2 / 85.7% SR on the 84 val episodes against 77.4 / 75.0% for the 346k / 390k v5 ones (nue_v5a, nue.pt); held-out
 accuracy is flat past ~200k (benchmarks/README.md, storage experiment; checkpoints/README.md, v5)."""
 
-V7 = V6.replace(name="v7", train_seeds=(("nue", 3), ("abl_fu", 3), ("abl_none", 3), ("fr", 3)))
-"""v6 with 3 training seeds for NUE, the no-f_u ablation (``abl_fu``: f_u on, AT and CBAM off), the all-off ablation
-(``abl_none``) and FR, so their rows and the comparisons between them pool seeds x episodes (issue 37, item 6); the
-other models train once. Only the training seed differs between a model's seeds."""
+V7 = V6.replace(name="v7", train_seeds=(("nue", 3), ("abl_at_cbam", 3), ("abl_none", 3), ("fr", 3)))
+"""v6 with 3 training seeds for NUE, the no-f_u ablation (``abl_at_cbam``: f_u off, AT and CBAM on — NUE without
+f_u; ``abl_fu`` is the other way round, f_u alone), the all-off ablation (``abl_none``) and FR, so their rows and the
+comparisons between them pool seeds x episodes (issue 37, item 6); the other models train once. Only the training
+seed differs between a model's seeds."""
 
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
@@ -280,7 +281,7 @@ RECIPES: dict[str, Recipe] = {
         eval_max_steps=5, experts=("expert",), train_seeds=(("nue", 2),)),
 }
 """Named recipes: ``v6`` (the default: v5 with 256k samples per model instead of 50 minutes), ``v7`` (v6 with 3
-training seeds for NUE, abl_fu, abl_none and FR), ``v5`` (the shipped checkpoints' recipe, for all eight models), ``v3``
+training seeds for NUE, abl_at_cbam, abl_none and FR), ``v5`` (the shipped checkpoints' recipe, for all eight models), ``v3``
 (checkpoints/README.md "v3 recipe") and ``quick`` (CI; 2 training seeds of NUE)."""
 
 

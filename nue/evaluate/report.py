@@ -108,7 +108,7 @@ def format_markdown(rows: Sequence[TableRow], paper: Mapping | None = None) -> s
 
 def _count_text(c: Cell) -> str:
     """``k / n``; several seeds: each seed's ``k`` over the common ``n`` (``40, 42, 45 / 84``), else ``k / n`` each."""
-    if c.spread is None:
+    if c.spread is None or c.n == 0:
         return f"{c.successes} / {c.n}"
     if len(set(c.spread.episodes)) == 1:
         return f"{', '.join(map(str, c.spread.successes))} / {c.spread.episodes[0]}"
