@@ -128,11 +128,13 @@ def paired_differences(records: Sequence[EpisodeRecord], reference: str = "nue",
             a = np.array([[v[c] for c in common] for v in vals])  # (seeds, episodes, metrics)
             b = np.array([[v[c] for c in common] for v in ref_vals])
             mean, lo, hi = seed_episode_bootstrap(a, b, n_boot, seed)
-            for i, run in enumerate(names[key]):
-                for j, ref_run in enumerate(names[ref]):
-                    pm, plo, phi = paired_bootstrap(a[i] - b[j], n_boot, seed)
-                    for m in range(len(metrics)):
-                        pairs[m].append(SeedPairDiff(run, ref_run, float(pm[m]), float(plo[m]), float(phi[m])))
+            runs = [(i, j) for i in range(len(vals)) for j in range(len(ref_vals))]
+            # one call for every pair: its columns share the resampled episodes, as separate calls with ``seed`` would
+            pm, plo, phi = paired_bootstrap(np.concatenate([a[i] - b[j] for i, j in runs], axis=1), n_boot, seed)
+            for p, (i, j) in enumerate(runs):
+                for m in range(len(metrics)):
+                    c = p * len(metrics) + m
+                    pairs[m].append(SeedPairDiff(names[key][i], names[ref][j], float(pm[c]), float(plo[c]), float(phi[c])))
         out += [PairedDiff(key, ref, m, len(common), float(mean[j]), float(lo[j]), float(hi[j]), len(vals),
                            len(ref_vals), tuple(pairs[j])) for j, m in enumerate(metrics)]
     return out

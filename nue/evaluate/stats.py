@@ -76,12 +76,17 @@ def seed_episode_bootstrap(a: np.ndarray, b: np.ndarray, n_boot: int = 10_000, s
     (sa, n, k), sb = a.shape, b.shape[0]
     rng = np.random.default_rng(seed)
     means = np.empty((n_boot, k))
+    flat_a = a.transpose(1, 0, 2).reshape(n, sa * k)
+    flat_b = b.transpose(1, 0, 2).reshape(n, sb * k)
     for s in range(0, n_boot, chunk):
         m = min(chunk, n_boot - s)
         wa = rng.multinomial(sa, np.full(sa, 1 / sa), size=m) / sa  # (m, S_a): each drawn seed's weight
         wb = rng.multinomial(sb, np.full(sb, 1 / sb), size=m) / sb
-        d = np.einsum("ms,snk->mnk", wa, a) - np.einsum("ms,snk->mnk", wb, b)  # (m, n, k)
         idx = rng.integers(0, n, size=(m, n))
-        means[s:s + m] = np.take_along_axis(d, idx[:, :, None], axis=1).mean(axis=1)
+        # each drawn episode's weight (times drawn / n), so a seed's mean over the drawn episodes is one matrix product
+        w = np.bincount((idx + n * np.arange(m)[:, None]).ravel(), minlength=m * n).reshape(m, n) / n
+        per_seed_a = (w @ flat_a).reshape(m, sa, k)
+        per_seed_b = (w @ flat_b).reshape(m, sb, k)
+        means[s:s + m] = np.einsum("ms,msk->mk", wa, per_seed_a) - np.einsum("ms,msk->mk", wb, per_seed_b)
     lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2], axis=0)
     return (a.mean(axis=0) - b.mean(axis=0)).mean(axis=0), lo, hi
