@@ -83,10 +83,10 @@ def seed_episode_bootstrap(a: np.ndarray, b: np.ndarray, n_boot: int = 10_000, s
         wa = rng.multinomial(sa, np.full(sa, 1 / sa), size=m) / sa  # (m, S_a): each drawn seed's weight
         wb = rng.multinomial(sb, np.full(sb, 1 / sb), size=m) / sb
         idx = rng.integers(0, n, size=(m, n))
-        # each drawn episode's weight (times drawn / n), so a seed's mean over the drawn episodes is one matrix product
-        w = np.bincount((idx + n * np.arange(m)[:, None]).ravel(), minlength=m * n).reshape(m, n) / n
-        per_seed_a = (w @ flat_a).reshape(m, sa, k)
-        per_seed_b = (w @ flat_b).reshape(m, sb, k)
+        # how often each episode was drawn, so a seed's mean over the drawn episodes is one matrix product
+        times = np.bincount((idx + n * np.arange(m)[:, None]).ravel(), minlength=m * n).reshape(m, n).astype(np.float64)
+        per_seed_a = (times @ flat_a).reshape(m, sa, k) / n
+        per_seed_b = (times @ flat_b).reshape(m, sb, k) / n
         means[s:s + m] = np.einsum("ms,msk->mk", wa, per_seed_a) - np.einsum("ms,msk->mk", wb, per_seed_b)
     lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2], axis=0)
     return (a.mean(axis=0) - b.mean(axis=0)).mean(axis=0), lo, hi
