@@ -374,3 +374,21 @@ def test_a_run_started_before_train_seeds_existed_resumes_and_refuses_seeds(tmp_
     check_recipe(tmp_path, quick)
     with pytest.raises(ConfigError, match="train_seeds"):
         check_recipe(tmp_path, get_recipe("quick"))
+
+
+def test_a_resumed_seeded_run_estimates_the_seeds_left(tmp_path):
+    """v7 with every model's seed 0 trained: the 8 seed runs are left, and an evaluation stage counts 18 methods."""
+    from nue.reproduce import remaining_estimate
+
+    v7 = get_recipe("v7")
+    folders = RunFolders(tmp_path, Path(), Path())
+    folders.marker("collect").parent.mkdir(parents=True)
+    for stage in ["scenes", "collect", *[f"train/{m}" for m in v7.models]]:
+        folders.marker(stage).write_text(json.dumps({"stage": stage, "seconds": 1.0}))
+    folders.records("eval/val252").parent.mkdir()
+    folders.records("eval/val252").write_text("{}\n" * (252 * 18 // 2))
+    left = {s.stage: s for s in remaining_estimate(v7, folders, 2)}
+    seeds = [r.name for r in v7.training_runs() if r.seed_index]
+    assert left["train"].seconds == {s.stage: s for s in estimate(v7, 2, runs=seeds)}["train"].seconds > 0
+    assert "8 runs (models x seeds)" in left["train"].detail and "8 trained earlier" in left["train"].detail
+    assert "2,268 of 4,536 runs recorded" in left["eval/val252"].detail

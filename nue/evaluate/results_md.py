@@ -2,7 +2,9 @@
 next to the paper, its ordering, the earlier recipes' rows, paired differences, coverage and closed-loop
 diagnostics, then one section per further episode set (``results/records_<set>.jsonl``), the further sets
 pooled, then the discussion.
-The tables themselves are :mod:`nue.evaluate.report`'s."""
+The tables themselves are :mod:`nue.evaluate.report`'s. A method trained with several seeds (runs ``<model>@s<k>``) is
+one row of seed means in each Table I, and its paired differences pool seeds x episodes (:mod:`nue.evaluate.paired`);
+the notes on seeds appear only then, so a table of single runs reads as before."""
 
 from __future__ import annotations
 
