@@ -1,7 +1,7 @@
 """Benchmark the policy networks on CPU: parameters, inference ms per step (batch 1), training samples/s (batch 64).
 
 Run as ``python benchmarks/policy.py`` (part of ``make bench``); writes
-``benchmarks/results/policy.json`` and prints the markdown table for ``benchmarks/README.md``.
+``benchmarks/results/policy.json`` and prints its markdown table.
 
 * input preparation: ``prepare_input`` on a raw 180 x 240 frame + goal + maps (1 thread);
 * inference: ``model.act`` (eval mode, sampling, Nav-A3C carrying its state), median (and min)

@@ -158,11 +158,14 @@ VIEW_REPLAY = ConfigOptions(
     Opt("key", default=None, help="Replay: the record's key (method/scene/episode_id)."),
     Opt("maps", help="Replay: re-run the memory along the recorded poses to show I_u / I_cog."),
     Opt("scenes_root", path=True, help="Replay: where the record's house is."),
-    Opt("episodes_dir", path=True, help="Replay: folder of per-house episode files."), as_dict=True)
+    Opt("episodes_dir", path=True, help="Replay: folder of per-house episode files (default: the set under "
+                                        "episodes/ whose file holds the record's episode, found by its digest)."),
+    Opt("drop_duplicates", help="Replay: a records file with a key recorded twice is refused; with this, use the first "
+                                "record of each key and say how many were dropped."), as_dict=True)
 VIEW_RUN = ConfigOptions(f"{_VIEW}:LiveSource", "task", Opt("seed", help="Live run: episode seed."),
                          Opt("max_steps", check=A.non_negative, help="Live run: override the step limit (0 = the preset's)."),
                          as_dict=True)
-VIEW_SERVE = ConfigOptions(f"{_VIEW}:ViewConfig", Opt("port", help="Port of the web page."), "grpc_port",
+VIEW_SERVE = ConfigOptions(f"{_VIEW}:ViewConfig", "host", Opt("port", help="Port of the web page."), "grpc_port",
                            Opt("save", path=True, help="Also write the recording here (.rrd; opens with `rerun FILE`)."),
                            Opt("serve", help="Serve the page (--no-serve: only --save)."))
 

@@ -29,6 +29,16 @@ def _echo_episode_checks(skipped, snapped: dict | None = None, source=None) -> N
         typer.echo(f"{source}: snapped to navigable cells: {', '.join(parts)}")
 
 
+DROP_HELP = ("A records file with a key recorded twice is refused; with this, keep the first record of each key and "
+             "say how many were dropped.")
+
+
+def _echo_dropped(path: Path, n: int) -> None:
+    from nue.evaluate.record_keys import dropped_message
+
+    typer.echo(dropped_message(path, n), err=True)
+
+
 def expert_cmd(
     scene: Path = typer.Option(..., help="Scene folder."),
     episodes: Path = typer.Option(..., help="Episode file (ours or the authors' format)."),
@@ -72,7 +82,7 @@ def expert_cmd(
 
 EVAL = ConfigOptions(
     "nue.evaluate.runner:EvalConfig", Opt("episodes_dir", path=True), Opt("scenes_root", path=True), "task", "seed",
-    Opt("device", check=A.device), "swap_maps", Opt("max_episodes", check=A.non_negative),
+    Opt("device", check=A.device), "swap_maps", Opt("max_episodes", check=A.non_negative), Opt("per_bin", check=A.non_negative),
     Opt("max_steps", check=A.non_negative), "skip_invalid")
 
 
@@ -94,7 +104,7 @@ def eval_cmd(
     skipped: list = []
     run_eval(method, out, cfg, workers=workers, ray_address=ray_address, skipped=skipped)
     _echo_episode_checks(skipped)
-    records = load_records(out)
+    records = load_records(out, drop_duplicates=True, on_dropped=_echo_dropped)  # duplicates of an older writer
     for name in sorted({r.method for r in records}):
         typer.echo(f"## {name}\n" + format_table(aggregate([r for r in records if r.method == name])))
 
@@ -122,7 +132,8 @@ def explore_cmd(
     A.positive("--workers", workers)
     check_output_file(out, "the records file")
     run_explore(method, out, cfg, workers=workers, ray_address=ray_address)
-    typer.echo(format_exploration_markdown(exploration_summary(load_records(out), reference), reference))
+    records = load_records(out, drop_duplicates=True, on_dropped=_echo_dropped)  # duplicates of an older writer
+    typer.echo(format_exploration_markdown(exploration_summary(records, reference), reference))
 
 
 def report_cmd(
@@ -138,6 +149,7 @@ def report_cmd(
                              "it; default \"Table I's episodes\"."),
     explore: list[str] = typer.Option([], help="NAME=FILE: `nue explore` records from set NAME's starts, a section of "
                                       "RESULTS.md; repeatable."),
+    drop_duplicates: bool = typer.Option(False, help=DROP_HELP),
 ):
     """Table I (SR / SPL / DTS per difficulty, CIs, paired differences to NUE) and coverage."""
     import json
@@ -151,7 +163,8 @@ def report_cmd(
     check_output_dir(out, "the report folder")
     if results_md:
         check_output_file(results_md)
-    recs = load_records(*records)
+    read = {"drop_duplicates": drop_duplicates, "on_dropped": _echo_dropped}
+    recs = load_records(*records, **read)
     sets = {}
     for spec in episode_set:
         set_name, sep, path = spec.partition("=")
@@ -159,13 +172,13 @@ def report_cmd(
             raise ConfigError("--set", f"expected NAME=FILE, got {spec!r}")
         if set_name in sets:
             raise ConfigError("--set", f"episode set {set_name!r} given twice")
-        sets[set_name] = load_records(Path(path))
+        sets[set_name] = load_records(Path(path), **read)
     explored = {}
     for spec in explore:
         set_name, sep, path = spec.partition("=")
         if not sep or not set_name or not path:
             raise ConfigError("--explore", f"expected NAME=FILE, got {spec!r}")
-        explored[set_name] = load_records(Path(path))
+        explored[set_name] = load_records(Path(path), **read)
     paths = {**write_report(recs, out, task=task), **write_coverage_figure(recs, out)}
     for set_name, set_recs in sets.items():
         write_report(set_recs, out / set_name, task=task)
@@ -197,6 +210,7 @@ def diagnose_cmd(
     scenes_root: Path = typer.Option(Path("data/scenes"), help="--handoff: where the houses are (generated if missing)."),
     workers: int = WORKERS,
     out: Optional[Path] = typer.Option(None, help="Also write everything as JSON here."),
+    drop_duplicates: bool = typer.Option(False, help=DROP_HELP),
 ):
     """Closed-loop diagnostics from records; map controls and a previous-action probe from demonstrations."""
     import json
@@ -222,8 +236,9 @@ def diagnose_cmd(
         A.positive("--workers", workers)
         if handoff:
             for r in records:
-                run_handoff(D.read_records(r), handoff_path(r), episodes_dir, scenes_root, task, workers=workers)
-        recs = load_records_with_handoff(*records)
+                run_handoff(D.read_records(r, drop_duplicates=drop_duplicates), handoff_path(r), episodes_dir,
+                            scenes_root, task, workers=workers)
+        recs = load_records_with_handoff(*records, drop_duplicates=drop_duplicates, on_dropped=_echo_dropped)
         diags = D.record_diagnostics(recs, task, method)
         result["records"] = diags
         typer.echo("## Closed-loop diagnostics\n\n" + D.format_record_diagnostics(diags))

@@ -115,10 +115,14 @@ def _run_dagger(cfg: TrainConfig, dagger: DaggerConfig, scene: list[Path], scene
     from nue.train.dagger import collect_config_from_manifest, run_dagger
     from nue.train.manifest import manifest_path, read_manifest
 
+    from nue.output_lock import hold_output
+
     expert_data = cfg.data.split(",")[0]
-    collect_cfg = collect_config_from_manifest(read_manifest(expert_data), scene, cfg.device, manifest_path(expert_data))
-    rounds = run_dagger(cfg, collect_cfg, dagger, scenes_root, workers=workers, ray_address=ray_address)
-    (Path(cfg.out) / "dagger.json").write_text(json.dumps(rounds, indent=1, default=str) + "\n")
+    with hold_output(cfg.out):  # the run folder, until dagger.json is written
+        collect_cfg = collect_config_from_manifest(read_manifest(expert_data), scene, cfg.device,
+                                                   manifest_path(expert_data))
+        rounds = run_dagger(cfg, collect_cfg, dagger, scenes_root, workers=workers, ray_address=ray_address)
+        (Path(cfg.out) / "dagger.json").write_text(json.dumps(rounds, indent=1, default=str) + "\n")
     typer.echo(f"DAgger: {len(rounds) - 1} rounds; final checkpoint {rounds[-1]['best']}")
 
 

@@ -57,3 +57,7 @@ class InvalidEpisodesError(EpisodeError):
 
     def __reduce__(self):
         return type(self), (self.where, self.invalid)
+
+
+class OutputInUseError(NueError):
+    """An output (records file, collection or run folder) that another nue process is writing."""

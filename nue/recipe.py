@@ -5,12 +5,12 @@ The time estimate of a recipe, stage by stage (``estimate``), is :mod:`nue.recip
 A recipe fixes everything that changes the results: the demonstrations (expert, DART noise, episodes per
 bin), the models and their training (budget in wall-clock minutes on one core or in samples, batch,
 precision, map dropout, closed-loop selection, optional DAgger), and the evaluation sets. How the run is
-executed (worker processes, a Ray cluster, folders) is not part of it. ``v6``, the default, is ``v5`` with a budget
-in samples seen (the same on any machine); ``v7`` is ``v6`` with 3 training seeds for NUE, the no-f_u and all-off
-ablations and FR (``Recipe.train_seeds``: a row of Table I is then the seeds' runs). ``v5`` is the recipe of the shipped
-checkpoints (``checkpoints/README.md``, "v5 recipe": the training config of ``checkpoints/*.pt``) applied to
-every model of Table I; ``v3`` is its predecessor (34 instead of 50 minutes per model);
-``quick`` is tiny everything, for CI (with 2 training seeds of NUE, so CI runs the seeds' path end to end).
+executed (worker processes, a Ray cluster, folders) is not part of it. ``v6``, the default, is the recipe of the
+shipped ``checkpoints/*.pt`` (``checkpoints/README.md``): ``v5`` with a budget of 256,000 samples per model, the same
+on any machine. ``v7`` is ``v6`` with 3 training seeds for NUE, the no-f_u and all-off ablations and FR
+(``Recipe.train_seeds``: a row of Table I is then the seeds' runs). ``v5`` trains each model for 50 minutes on one
+core (its models are ``results/v5/checkpoints/``), ``v3`` for 34 minutes with three snapshots competing in the
+selection; ``quick`` is tiny everything, for CI (with 2 training seeds of NUE, so CI runs the seeds' path end to end).
 """
 
 from __future__ import annotations
@@ -107,8 +107,8 @@ class Recipe:
     """Per-model budget on one core (one torch thread), minutes of ``budget_clock``; 0 = none."""
     budget_clock: str = "cpu"
     """What ``train_minutes`` counts (``nue train --budget-clock``): ``cpu``, each training process's CPU time, so a
-    model gets its minutes of one core even when other work shares the machine; ``wall``, wall-clock (the shipped
-    checkpoints were trained so, side by side on a machine kept otherwise quiet, where the two agree)."""
+    model gets its minutes of one core even when other work shares the machine; ``wall``, wall-clock (the two agree
+    on a machine kept otherwise quiet)."""
     train_samples: int = 0
     """Per-model budget in samples seen (steps x samples per step); 0 = none (then ``steps`` caps)."""
     steps: tuple[tuple[str, StepPlan], ...] = (("nue", StepPlan(12_000, 750)), ("fr", StepPlan(30_000, 1_500)),
@@ -123,10 +123,10 @@ class Recipe:
     warmup: int = 100
     """Linear warm-up steps."""
     precision: str = "auto"
-    """``auto`` (bf16 autocast where the device runs bfloat16 natively, as on the machine that trained the shipped
-    checkpoints, else fp32), ``fp32`` or ``bf16``. Forced bf16 on a CPU without AVX512-BF16 is emulated and ~7x
-    slower (benchmarks/results/train_no_native_bf16.json), which under a wall-clock budget cuts the samples seen
-    7-fold; held-out accuracy of bf16 and fp32 is the same step for step."""
+    """``auto`` (bf16 autocast where the device runs bfloat16 natively, else fp32), ``fp32`` or ``bf16``. Forced
+    bf16 on a CPU without AVX512-BF16 is emulated and ~7x slower (benchmarks/results/train_no_native_bf16.json),
+    which under a time budget cuts the samples seen 7-fold; held-out accuracy of bf16 and fp32 is the same step for
+    step."""
     map_dropout: float = 0.2
     """Probability of replacing a sample's memory maps by another sample's; models that read maps only."""
     select: str = "closed_loop"
@@ -258,10 +258,8 @@ V5 = V3.replace(name="v5", train_minutes=50.0, select_candidates=2,
 
 V6 = V5.replace(name="v6", train_minutes=0.0, train_samples=256_000)
 """v5 with a budget in samples seen instead of minutes: the same for every model whatever the machine, its load or
-how many sessions a run spans (a time budget gives a slower machine's models fewer samples, and the models of one
-run trained on different days unequal ones). 256k samples = 4,000 steps of 64: NUE runs of 192k samples reached
-76.2 / 85.7% SR on the 84 val episodes against 77.4 / 75.0% for the 346k / 390k v5 ones (nue_v5a, nue.pt); held-out
-accuracy is flat past ~200k (benchmarks/README.md, storage experiment; checkpoints/README.md, v5)."""
+how many sessions a run spans (a time budget gives a slower machine's models fewer samples). 256,000 samples are
+4,000 optimiser steps of 64 samples (Nav-A3C: 8 sequences of 8); why that many: docs/history/checkpoints.md."""
 
 V7 = V6.replace(name="v7", train_seeds=(("nue", 3), ("abl_at_cbam", 3), ("abl_none", 3), ("fr", 3)))
 """v6 with 3 training seeds for NUE, the no-f_u ablation (``abl_at_cbam``: f_u off, AT and CBAM on — NUE without
@@ -280,9 +278,9 @@ RECIPES: dict[str, Recipe] = {
         seq_len=2, warmup=1, precision="fp32", select="accuracy", eval_houses=(0,), eval_max_episodes=1,
         eval_max_steps=5, experts=("expert",), train_seeds=(("nue", 2),)),
 }
-"""Named recipes: ``v6`` (the default: v5 with 256k samples per model instead of 50 minutes), ``v7`` (v6 with 3
-training seeds for NUE, abl_at_cbam, abl_none and FR), ``v5`` (the shipped checkpoints' recipe, for all eight models), ``v3``
-(checkpoints/README.md "v3 recipe") and ``quick`` (CI; 2 training seeds of NUE)."""
+"""Named recipes: ``v6`` (the default and the shipped checkpoints': v5 with 256k samples per model instead of 50
+minutes), ``v7`` (v6 with 3 training seeds for NUE, abl_at_cbam, abl_none and FR), ``v5``, ``v3``
+(docs/history/checkpoints.md) and ``quick`` (CI; 2 training seeds of NUE)."""
 
 
 def get_recipe(name: str) -> Recipe:

@@ -17,11 +17,11 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class CostModel:
-    """Measured costs the estimate scales (2-core x86 CPU with AVX512-BF16, checkpoints/README.md v2 / v3 runs)."""
+    """Costs measured in earlier runs on 2-core x86 CPUs, which the estimate scales (each field says where its
+    number comes from; docs/history/ has the runs)."""
 
     collect_s_per_step: float = 0.052
-    """Collection, seconds per step per worker (the v5 command at 20da927: 27.7 min x 2 workers / 63,999 steps;
-    before the agent-loop speedups of issue 11, v2 / v3 took 0.093 / 0.098)."""
+    """Collection, seconds per step per worker (the v5 / v6 collection: 63,999 steps in 27.7 min on 2 workers)."""
     steps_per_episode: tuple[tuple[str, float], ...] = (("geodesic", 36.8), ("explore", 102.0))
     """Noise-free episode length per expert, steps (v1: 41,756 / 1,134; explore: v3's 145 / 1.42)."""
     noise_length_factor: float = 1.4
@@ -31,12 +31,11 @@ class CostModel:
     samples_per_s: tuple[tuple[str, float], ...] = (("nue", 98.0), ("fr", 200.0), ("nav_a3c", 232.0))
     """Eager training throughput per model kind, two trainings side by side on a 2-core Xeon without native bf16
     (fp32): the compiled rates of the v6 run (``results/reproduce/run/stages``, 256,000 samples in ``train_seconds``:
-    the six NUE-family models 136-163 samples/s, mean 147; FR 330; Nav-A3C 334) divided by ``compiled_speedup``.
-    Session 1 of that run, eager on an AMD EPYC, trained NUE at 51-57 samples/s."""
+    the six NUE-family models 136-163 samples/s, mean 147; FR 330; Nav-A3C 334) divided by ``compiled_speedup``."""
     compiled_speedup: tuple[tuple[str, float], ...] = (("nue", 1.5), ("fr", 1.65), ("nav_a3c", 1.44))
     """Training throughput with ``nue train --compile`` relative to eager, per model kind: eager and compiled steps
-    interleaved in one process (batch 64 / 8 x 8 sequences, fp32, one thread, synthetic data, aed64cc, a busy
-    2-core Xeon without native bf16)."""
+    interleaved in one process (batch 64 / 8 x 8 sequences, fp32, one thread, synthetic data, a 2-core Xeon without
+    native bf16)."""
     select_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 11.5), ("fr", 1.7), ("nav_a3c", 1.9))
     """Closed-loop selection, seconds per episode (400-step limit; the v6 run: 2 x 21 episodes in 7.2-8.6 min per
     NUE-family model, 73 s FR, 79 s Nav-A3C)."""

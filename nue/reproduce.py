@@ -41,6 +41,7 @@ from nue.evaluate.report import load_records, write_report
 from nue.evaluate.results_md import render_results_md
 from nue.evaluate.runner import EvalConfig, episode_files, run_eval
 from nue.jobs import fail_point
+from nue.output_lock import hold_output
 from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, format_duration, format_estimate
 from nue.reproduce_train import TrainJob, collect_config, run_training, train_config, train_model  # noqa: F401
 from nue.scene.generator import SPLITS, ensure_house
@@ -207,9 +208,16 @@ def plan_stages(recipe: Recipe) -> list[str]:
 def reproduce(recipe: Recipe, out, scenes_root="data/scenes", episodes_root="episodes", workers: int = 1,
               ray_address: str | None = None, device: str = "cpu", results_md=None,
               echo: Callable[[str], None] = print, progress: bool = True, compile: bool = False) -> ReproduceResult:
-    """Run (or resume) ``recipe`` into ``out``; see the module docstring. ``compile``: train with ``torch.compile``
-    (``TrainConfig.compile``: the same arithmetic, rounded differently; a run may switch it between calls)."""
-    folders = RunFolders(Path(out), Path(scenes_root), Path(episodes_root))
+    """Run (or resume) ``recipe`` into ``out``, which this process holds meanwhile (one writer per output); see the
+    module docstring. ``compile``: train with ``torch.compile`` (``TrainConfig.compile``: the same arithmetic,
+    rounded differently; a run may switch it between calls)."""
+    with hold_output(out):
+        folders = RunFolders(Path(out), Path(scenes_root), Path(episodes_root))
+        return _reproduce(recipe, folders, workers, ray_address, device, results_md, echo, progress, compile)
+
+
+def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device, results_md, echo, progress,
+               compile) -> ReproduceResult:
     check_recipe(folders.out, recipe)
     est = {s.stage: s for s in remaining_estimate(recipe, folders, workers, compile)}
     echo(f"nue reproduce: recipe {recipe.name!r} -> {folders.out}; estimated wall-clock with {workers} worker(s):\n"

@@ -214,7 +214,7 @@ def one_episode_dir(tmp_path):
 
 @pytest.mark.parametrize("value", [float("nan"), float("inf")])
 def test_non_finite_weights_are_refused_at_load(capsys, tmp_path, checkpoint, one_episode_dir, value):
-    ckpt = torch.load(checkpoint, weights_only=False)
+    ckpt = torch.load(checkpoint, weights_only=True)
     name = next(k for k, v in ckpt["model_state"].items() if v.is_floating_point())
     ckpt["model_state"][name].view(-1)[0] = value
     bad = tmp_path / "bad.pt"

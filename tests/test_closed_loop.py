@@ -209,8 +209,8 @@ def test_closed_loop_selection_runs_snapshots_and_copies_the_winner(tmp_path, bo
     assert ranked[0].sr >= ranked[1].sr
     if fwd.success:
         assert ranked[0].name == "step_000020"
-    best = torch.load(run / "best.pt", weights_only=False)
-    winner = torch.load(ranked[0].path, weights_only=False)
+    best = torch.load(run / "best.pt", weights_only=True)
+    winner = torch.load(ranked[0].path, weights_only=True)
     assert all(torch.equal(best["model_state"][k], winner["model_state"][k]) for k in winner["model_state"])
     assert json.loads((run / "selection.json").read_text())["selected"] == ranked[0].name
 

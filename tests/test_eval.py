@@ -110,7 +110,7 @@ def test_resume_refuses_records_made_with_other_settings(tmp_path, episodes_dir)
     is refused with one line naming the file; the same settings resume (nothing is rerun)."""
     a = _checkpoint(tmp_path / "a.pt")
     b = _checkpoint(tmp_path / "b.pt")
-    state = torch.load(b, weights_only=False)
+    state = torch.load(b, weights_only=True)
     state["step"] = 1  # another file under the same method name
     torch.save(state, b)
     out = tmp_path / "r.jsonl"

@@ -157,6 +157,10 @@ def test_diagnose_prints_the_handoff(tmp_path, two_houses):
     res = nue_here("diagnose", "--records", out)
     assert res.returncode == 0, res.stderr
     assert "hand-off" in res.stdout and "| expert | 2 | 0 | 0 | 0 | 0 |" in res.stdout
+    per_bin = tmp_path / "per_bin.jsonl"  # --per-bin 1 keeps the first episode of each bin: both of them here
+    assert nue_here("eval", "-c", "random", "--out", per_bin, "--episodes-dir", eps_dir, "--scenes-root", root,
+                    "--max-steps", 5, "--per-bin", 1).returncode == 0
+    assert len(per_bin.read_text().splitlines()) == 4
     bad = nue_here("diagnose", "--records", out, "--handoff")
     assert bad.returncode == 2 and "--episodes-dir" in bad.stderr
 
@@ -191,3 +195,22 @@ def test_exploration_benchmark_runs_resumes_and_refuses_other_settings(tmp_path,
     assert other.returncode == 2 and "explore.jsonl" in other.stderr and "max_steps" in other.stderr
     one = nue_here("explore", "-c", "random", "--out", tmp_path / "x.jsonl", "--episodes-dir", FIXTURES / "nowhere")
     assert one.returncode == 2 and "Traceback" not in one.stderr
+
+
+def test_paired_outcome_differences():
+    from nue.evaluate.handoff import format_outcome_differences, outcome_differences
+    from nue.sim.record import EpisodeRecord
+
+    def rec(method, ep, h):
+        return EpisodeRecord(ep, "s", "easy", h.outcome == "success", 5.0, 1.0, 1.0, 1.0, 0.8, method=method,
+                             extra={HANDOFF_KEY: h.to_dict()})
+
+    never, lost, won = handoff([9, 9], None, False), handoff([4, 1], None, False), handoff([4, 0.5], 0, True)
+    recs = [rec("nue", "a", won), rec("nue", "b", lost), rec("nue", "c", never), rec("nue", "d", won),
+            rec("fr", "a", never), rec("fr", "b", never), rec("fr", "c", never), rec("fr", "d", lost)]
+    diffs = {(d.method, d.outcome): d for d in outcome_differences(recs)}
+    assert diffs[("fr", "never_near")].diff == pytest.approx((1 - 3) / 4)  # NUE 1 of 4, FR 3 of 4
+    assert diffs[("fr", "found_then_lost")].diff == pytest.approx(0.0) and diffs[("fr", "never_near")].n == 4
+    assert diffs[("fr", "never_near")].lo <= -0.5 <= diffs[("fr", "never_near")].hi
+    assert "| fr | 4 | -50.0 [" in format_outcome_differences(list(diffs.values()))
+    assert outcome_differences(recs, reference="nav_a3c") == []

@@ -8,7 +8,7 @@ import nue
 
 ROOT = Path(nue.__file__).parent
 LAYERS = [
-    {"nue.errors", "nue.outputs"},
+    {"nue.errors", "nue.outputs", "nue.output_lock"},
     {"nue.scene"},
     {"nue.sim"},
     {"nue.nerf"},

@@ -219,3 +219,35 @@ def test_config_fields_are_documented():
     src = inspect.getsource(MemoryConfig)
     for f in dataclasses.fields(MemoryConfig):
         assert f'{f.name}:' in src and '"""' in src.split(f"{f.name}:", 1)[1].split("\n", 2)[1], f.name
+
+
+def test_panorama_shows_the_unseen_directions_as_uncertain():
+    """After frames facing +x only, the panorama at the same spot ranks the headings by how much of them was seen:
+    the robot's own heading least uncertain, the three views behind it most (the analytic box room)."""
+    nerf = OnlineNeRF(get_memory("fast_pano"), CAMERA)
+    nerf.reset(0)
+    pose = np.array([-1.5, -0.5, 0.0])
+    for i in range(10):
+        p = pose + np.array([0.0, 0.0, 0.1 * (i % 3 - 1)])
+        rgb, depth = box_room_frame(p, CAMERA)
+        nerf.step(rgb, depth, p)
+    pano = nerf.render_panorama(pose)
+    assert pano.shape == (8, 6, 8) and torch.isfinite(pano).all()
+    per_view = pano.mean(dim=(1, 2))
+    assert int(torch.argmin(per_view)) == 0
+    assert per_view[0] < 0.5 * per_view[1] and per_view[1] < per_view[2]
+    assert per_view[3:6].min() > per_view[[0, 1, 2, 6, 7]].max() - 1e-6
+    maps = nerf.render_maps(pose, box_room_frame(pose, CAMERA)[1])  # the preset puts it in the maps
+    assert torch.equal(maps.panorama, pano)
+    again = nerf.render_panorama(pose, headings=4)  # views 0, 2, 4, 6 of the 8
+    assert torch.allclose(again, pano[::2], atol=1e-6)
+    assert OnlineNeRF(SMALL, CAMERA).render_maps(pose, box_room_frame(pose, CAMERA)[1]).panorama is None
+
+
+def test_panorama_fields_keep_older_config_dicts():
+    d = get_memory("fast").to_dict()
+    assert "panorama_headings" not in d and get_memory(d) == get_memory("fast")
+    pano = get_memory("fast_pano")
+    assert get_memory(pano.to_dict()) == pano and pano.to_dict()["panorama_headings"] == 8
+    with pytest.raises(ConfigError):
+        get_memory("fast").replace(panorama_headings=-1)

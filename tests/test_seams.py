@@ -88,7 +88,12 @@ def test_job_payloads_pickle_as_they_are():
 def test_run_settings_record_form_and_differences():
     settings = RunSettings("abc", "paper", 20, 0, False, True, RunSettings.episode_digest(EPISODE), "h")
     stored = settings.to_dict()
-    assert list(stored) == ["agent", "task", "max_steps", "seed", "swap_maps", "coverage", "episode", "scene"]
+    assert list(stored) == ["agent", "task", "max_steps", "seed", "swap_maps", "coverage", "episode", "scene",
+                            "goal_from", "explore_only"]
     assert settings.differences(stored) == []
+    older = {k: v for k, v in stored.items() if k not in ("goal_from", "explore_only")}  # before those existed
+    assert settings.differences(older) == []
+    explore = RunSettings("abc", "paper", 20, 0, False, True, RunSettings.episode_digest(EPISODE), "h", "g/e", True)
+    assert explore.differences(older) == ["explore_only", "goal_from"]
     assert settings.differences({**stored, "max_steps": 30, "agent": "x"}) == ["agent", "max_steps"]
     assert settings.differences(None) == ["settings (an older record)"]

@@ -1,5 +1,6 @@
-"""``nue view``: a replay reproduces a record's poses, the exported .rrd opens with Rerun's reader and holds
-every view, a taken port is a one-line error, and headless Chromium sees the scene (trajectory colour)."""
+"""``nue view``: a replay reproduces a record's poses and finds the record's episode file by its digest, the seen
+floor is drawn on the house's floor only, the exported .rrd opens with Rerun's reader and holds every view, a taken
+port is a one-line error, and headless Chromium sees the scene (trajectory colour)."""
 
 from __future__ import annotations
 
@@ -15,15 +16,16 @@ import pytest
 
 pytest.importorskip("rerun")
 
-from nue.errors import DataError
+from nue.errors import DataError, EpisodeError
+from nue.evaluate.eval_job import RunSettings
 from nue.policy.agent import ExpertAgent
 from nue.rollout import run_episode
 from nue.sim.env import ImageNavEnv
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import save_episodes
 from nue.sim.task import get_task
-from nue.viz.view import ReplaySource, ViewConfig, find_record, view
-from nue.viz.view_scene import TRAJECTORY_COLOUR
+from nue.viz.view import ReplaySource, ViewConfig, episode_files, find_episode, find_record, view
+from nue.viz.view_scene import TRAJECTORY_COLOUR, EpisodeLogger, floor_cells
 from nue.viz.view_shot import find_chromium, has_colour, png_pixels, shows_content
 
 from .conftest import BOX_ROOM, FIXTURES, nue_here
@@ -111,6 +113,66 @@ def test_replay_reproduces_recorded_poses(tmp_path, box_scene, box_nav, box_rend
     xy = np.array([t[0][:2] for t in translations])
     np.testing.assert_allclose(xy, record.trajectory().poses[:, :2], atol=1e-5)  # the record's poses, as logged
     np.testing.assert_allclose(xy, live_poses[:, :2], atol=0.006)  # = the run's poses to the record's 5 mm
+
+
+def test_a_replay_finds_its_episode_file_by_digest(tmp_path, box_scene, box_nav, box_renderer, episode_file):
+    """Two sets hold an episode ``easy_000`` of the house: the record's digest picks the one it was made on, whatever
+    the order the sets are tried in; without a digest the first set holding the id is taken."""
+    _, theirs = episode_file
+    other = generate_episodes(box_scene, "paper", EpisodeGenConfig(per_bin=1), seed=5, navgrid=box_nav,
+                              renderer=box_renderer)[0]
+    digest = RunSettings.episode_digest
+    assert other.episode_id == theirs.episode_id and digest(other) != digest(theirs)
+    root = tmp_path / "episodes"
+    save_episodes(root / "val" / "box_room.json", [other], "paper")
+    save_episodes(root / "set2" / "box_room.json", [theirs], "paper")
+    task = dataclasses.replace(get_task("paper"), max_steps=2)
+    env = ImageNavEnv(box_scene, task, [theirs], navgrid=box_nav, renderer=box_renderer)
+    plain = run_episode(env, ExpertAgent(), episode=theirs, method="expert")
+    settings = {"episode": digest(theirs)}
+    record = dataclasses.replace(plain, extra={**plain.extra, "settings": settings})
+    for name, first in (("records.jsonl", "val"), ("records_set2.jsonl", "set2"), ("set2+swap.jsonl", "set2")):
+        files = episode_files([tmp_path / name], "box_room", roots=(root,))
+        assert files[0] == root / first / "box_room.json" and len(files) == 2
+        found = find_episode(record, [tmp_path / name], box_scene, "paper", box_nav, roots=(root,))
+        assert found == theirs
+    assert find_episode(plain, [tmp_path / "records.jsonl"], box_scene, "paper", box_nav, roots=(root,)) == other
+    (root / "set2" / "box_room.json").unlink()
+    with pytest.raises(EpisodeError, match="digest .*tried .*val/box_room.json"):
+        find_episode(record, [tmp_path / "records.jsonl"], box_scene, "paper", box_nav, roots=(root,))
+
+
+def test_seen_floor_dots_stay_on_the_floor_map(tmp_path, box_scene, box_nav, box_renderer, episode_file):
+    """The coverage measure counts cells at and just behind the foot of walls (a wall's bottom 5 cm pass as floor);
+    the viewer draws only the seen cells on the floor map."""
+    _, ep = episode_file
+    task = dataclasses.replace(get_task("paper"), max_steps=12)
+    env = ImageNavEnv(box_scene, task, [ep], navgrid=box_nav, renderer=box_renderer)
+    rec = rerun_recording(tmp_path / "seen.rrd")
+    log: list[EpisodeLogger] = []
+
+    def on_step(s) -> None:
+        if s.t == 0:
+            log.append(EpisodeLogger(rec, task.camera, box_nav, env.floor_z))
+        log[0].step(s.t, s.obs["pose"], s.obs["rgb"], s.obs["depth"])
+
+    run_episode(env, ExpertAgent(), episode=ep, on_step=on_step)
+    rec.flush()
+    rec.disconnect()
+    floor = floor_cells(box_nav)
+    assert (log[0].seen & ~floor).any()  # what the measure counts off the floor map (the box room has some)
+    _, dots = _column(tmp_path / "seen.rrd", "/world/seen", "positions")
+    for points in dots:
+        rc = box_nav.cell_of(np.asarray(points)[:, :2])
+        assert floor[rc[:, 0], rc[:, 1]].all()
+
+
+def rerun_recording(path):
+    import rerun as rr
+
+    rec = rr.RecordingStream("nue-test")
+    rec.set_sinks(rr.FileSink(str(path)))
+    return rec
 
 
 def test_export_of_a_policy_run_opens_with_reader_and_holds_every_view(tmp_path, episode_file):

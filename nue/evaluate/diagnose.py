@@ -7,7 +7,7 @@ Per method (records grouped by canonical method key), pooled over its episodes:
   records made before trajectories existed count too;
 * P(forward | blocked): over the steps t + 1 whose step t was a blocked forward move, the fraction
   choosing MOVE_FORWARD again. The simulator slides a blocked move along the obstacle, so most blocked
-  moves still advance (v3 NUE: median 0.21 m of a 0.25 m step); P(forward | stuck) counts only the
+  moves still advance (a trained NUE's: median 0.21 m of a 0.25 m step); P(forward | stuck) counts only the
   blocked moves that advanced less than ``STUCK_FRACTION`` of the forward step (from the poses), where
   another forward move is the wall-pushing the diagnostic is after; P(blocked again | blocked): over the
   same steps t + 1, the fraction whose move was blocked too (a forward move into the obstacle again,
@@ -32,6 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from nue.errors import DataError
+from nue.evaluate.record_keys import OnDropped, UniqueKeys
 from nue.evaluate.table import by_method, canonical_method, method_label
 from nue.sim.record import EpisodeRecord, RecordFormatError, Trajectory
 from nue.sim.task import TaskConfig, get_task
@@ -184,10 +185,13 @@ def record_diagnostics(records: Sequence[EpisodeRecord], task: str | TaskConfig 
     return out
 
 
-def read_records(*paths) -> list[EpisodeRecord]:
-    """Records from JSON-lines files, checked: a bad line or trajectory raises :class:`DataError` naming file and line."""
+def read_records(*paths, drop_duplicates: bool = False, on_dropped: OnDropped | None = None) -> list[EpisodeRecord]:
+    """Records from JSON-lines files, checked: a bad line or trajectory raises :class:`DataError` naming file and line,
+    and so does a key recorded twice in one file (:mod:`nue.evaluate.record_keys`), unless ``drop_duplicates``: then
+    the first record of each key is kept and ``on_dropped(file, n)`` told how many were left out."""
     out = []
     for p in paths:
+        unique = UniqueKeys(p, drop_duplicates)
         try:
             lines = Path(p).read_text().splitlines()
         except (OSError, UnicodeDecodeError) as exc:
@@ -215,7 +219,9 @@ def read_records(*paths) -> list[EpisodeRecord]:
                 raise DataError(p, f"line {i}: not an episode record ({exc})") from None
             except (ValueError, KeyError, binascii.Error) as exc:
                 raise DataError(p, f"line {i}: bad trajectory ({exc})") from None
-            out.append(r)
+            if unique.first(d, i):
+                out.append(r)
+        unique.report(on_dropped)
     return out
 
 

@@ -27,7 +27,8 @@ from nue.evaluate.coverage import COVERAGE_KEY, pad_curves
 from nue.evaluate.eval_job import EvalJob, RunSettings
 from nue.evaluate.stats import paired_bootstrap
 from nue.jobs import Job, episode_seed, run_jobs
-from nue.sim.episodes import Episode, read_episodes
+from nue.output_lock import hold_output
+from nue.sim.episodes import read_episodes
 from nue.sim.record import EpisodeRecord
 
 REPORT_STEPS = (100, 200, 500, 800)
@@ -56,31 +57,15 @@ class ExploreConfig:
     """Use only the first N episodes of each difficulty bin of each house (0 = all)."""
 
 
-def _subset(episodes: Sequence[Episode], per_bin: int) -> list[int]:
-    """Indices of the first ``per_bin`` episodes of each difficulty bin (all for 0), in file order."""
-    taken: dict[str, int] = {}
-    out = []
-    for i, ep in enumerate(episodes):
-        if not per_bin or taken.get(ep.difficulty, 0) < per_bin:
-            taken[ep.difficulty] = taken.get(ep.difficulty, 0) + 1
-            out.append(i)
-    return out
-
-
 def plan_explore(methods: list[str], cfg: ExploreConfig) -> list[Job]:
     """One job per (start, method); keys ``<method>/<house>/<episode id>``."""
-    from nue.evaluate.runner import EXPERT_METHODS, checked_checkpoint, episode_files, house_folder, parse_method
+    from nue.evaluate.runner import EXPERT_METHODS, episode_files, first_per_bin, house_folder, parse_methods
     from nue.scene.scene import Scene
     from nue.train.checkpoint import check_compatible
 
     if cfg.steps <= 0:
         raise ConfigError("--steps", "must be positive")
-    parsed = [parse_method(m) for m in methods]
-    names = [n for n, _ in parsed]
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise ConfigError("--checkpoint", f"method name {twice[0]!r} given twice; name them apart with name=path")
-    checked = {ckpt: checked_checkpoint(ckpt, cfg.task) for _, ckpt in parsed if ckpt is not None}
+    parsed, checked = parse_methods(methods, cfg.task)
     houses = []
     for f in episode_files(cfg.episodes_dir):
         folder = house_folder(f.name.removesuffix(".gz").removesuffix(".json"), cfg.scenes_root, cfg.split)
@@ -93,7 +78,7 @@ def plan_explore(methods: list[str], cfg: ExploreConfig) -> list[Job]:
     jobs = []
     for h, (folder, scene, episodes) in enumerate(houses):
         g_folder, g_scene, g_eps = houses[(h + 1) % len(houses)]
-        for i in _subset(episodes, cfg.per_bin):
+        for i in first_per_bin(episodes, cfg.per_bin):
             ep, goal = episodes[i], g_eps[i % len(g_eps)]
             goal_from = f"{g_scene.content_hash}/{RunSettings.episode_digest(goal)}"
             for method, ckpt in parsed:
@@ -113,16 +98,18 @@ def plan_explore(methods: list[str], cfg: ExploreConfig) -> list[Job]:
 def run_explore(methods: list[str], out, cfg: ExploreConfig, workers: int = 1, ray_address: str | None = None,
                 progress: bool = True) -> Path:
     """Run the benchmark for ``methods`` (checkpoints, ``name=path``, ``expert-explore``, ``random``); records
-    appended to ``out`` (resumes; refuses records of other settings)."""
+    appended to ``out`` (resumes; refuses records of other settings), which this process holds meanwhile
+    (:func:`~nue.output_lock.hold_output`: a second writer stops at once)."""
     from nue.evaluate.runner import append_record, check_resumable, eval_episode
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    jobs = plan_explore(methods, cfg)
-    done = check_resumable(out, jobs)
-    run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
-             is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="explore",
-             progress=progress)
+    with hold_output(out):
+        jobs = plan_explore(methods, cfg)
+        done = check_resumable(out, jobs)
+        run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
+                 is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="explore",
+                 progress=progress)
     return out
 
 

@@ -2,7 +2,7 @@
 came, and where a failed episode was lost.
 
 An episode splits in two phases at the step the goal is first *in view* (the exploring expert's own switch,
-:func:`goal_in_view`: the goal's grid cell is seen as floor in the current depth frame and the robot is at most
+:func:`nue.sim.seen.goal_in_view`: the goal's grid cell is seen as floor in the current depth frame and the robot is at most
 ``view_range`` = 3 m from the goal): steps before it are *search*, steps from it to the end *exploitation*. A
 failed episode (every failure here is a time-out) is one of
 
@@ -26,8 +26,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from nue.sim.seen import CoverageConfig, GridLike, seen_floor_cells
-from nue.sim.task import CameraConfig
+from nue.sim.seen import CoverageConfig, goal_in_view
 
 HANDOFF_KEY = "handoff"
 """Key of ``EpisodeRecord.extra`` (and of a hand-off file's lines) holding a :class:`Handoff`'s dict."""
@@ -112,15 +111,6 @@ def handoff(geodesic: Sequence[float], first_seen_step: int | None, success: boo
                    steps_near=int(near.size), search_steps=found, exploit_steps=steps - found, outcome=outcome)
 
 
-def goal_in_view(depth: np.ndarray, pose, goal_cell: tuple[int, int], goal_xy, camera: CameraConfig, grid: GridLike,
-                 floor_z: float, config: HandoffConfig = HandoffConfig()) -> bool:
-    """Whether the goal is in view from ``pose`` (x, y, yaw): the robot is at most ``view_range`` from ``goal_xy``
-    and ``depth`` (H, W[, 1]) metres sees the floor of ``goal_cell`` (row, col) — the exploring expert's test."""
-    if float(np.hypot(pose[0] - goal_xy[0], pose[1] - goal_xy[1])) > config.view_range:
-        return False
-    return bool(seen_floor_cells(depth, pose, camera, grid, floor_z, config.seen)[goal_cell])
-
-
 class GoalSightTracker:
     """An ``on_step`` callback of :func:`nue.rollout.run_episode` finding the first step the goal is in view.
 
@@ -141,7 +131,7 @@ class GoalSightTracker:
             self._goal = np.asarray(env.nav_goal_xy, dtype=np.float64)
             self._cell = tuple(int(v) for v in env.navgrid.cell_of(self._goal))
         if goal_in_view(step.obs["depth"], step.obs["pose"], self._cell, self._goal, env.task.camera, env.navgrid,
-                        env.floor_z, self.config):
+                        env.floor_z, self.config.view_range, self.config.seen):
             self.first_seen_step = int(step.t)
 
 
@@ -165,7 +155,8 @@ def handoff_of_record(record, env, config: HandoffConfig = HandoffConfig()) -> H
     close = np.flatnonzero(np.hypot(poses[:-1, 0] - goal[0], poses[:-1, 1] - goal[1]) <= config.view_range)
     for t in close:  # observations exist for steps 0..T-1 (the last pose is never observed by the agent)
         _, depth = env.renderer.render(poses[t], env.floor_z)
-        if goal_in_view(depth, poses[t], cell, goal, env.task.camera, env.navgrid, env.floor_z, config):
+        if goal_in_view(depth, poses[t], cell, goal, env.task.camera, env.navgrid, env.floor_z, config.view_range,
+                        config.seen):
             first_seen = int(t)
             break
     return handoff(geodesic_along(poses, env.navgrid, env.goal_field), first_seen, record.success, config)
@@ -242,4 +233,59 @@ def format_handoff_markdown(summaries: Mapping[str, HandoffSummary], labels: Map
                      f"{o['near_unseen']} | {o['never_near']} | {s.seen} | {f(s.median_first_seen)} | "
                      f"{f(s.median_search_success)} / {f(s.median_exploit_success)} | "
                      f"{f(s.median_steps_near_lost)}, {f(s.median_closest_lost, '.2f')} m |")
+    return "\n".join(lines) + "\n"
+
+
+@dataclass(frozen=True)
+class OutcomeDiff:
+    """A method's rate of one failure class minus the reference's, over the episodes both ran (paired)."""
+
+    method: str
+    outcome: str
+    n: int
+    """Episodes both ran."""
+    diff: float
+    """Mean of (reference has the class) - (method has it), as a fraction: below 0 = the reference has fewer."""
+    lo: float
+    hi: float
+    """95% paired-bootstrap interval of ``diff`` (10,000 resamples, seed 0)."""
+
+
+def outcome_differences(records: Sequence, reference: str = "nue", classes: Sequence[str] = ("never_near", "found_then_lost"),
+                        method_of=lambda r: r.method) -> list[OutcomeDiff]:
+    """Per method other than ``reference`` (sorted) and class, the paired difference of the class's rate
+    (reference minus method), matched on (scene, episode id) over the records carrying a hand-off."""
+    from nue.evaluate.stats import paired_bootstrap
+
+    by: dict[str, dict] = {}
+    for r in records:
+        h = record_handoff(r)
+        if h is not None:
+            by.setdefault(method_of(r), {})[(r.scene, r.episode_id)] = h.outcome
+    ref = by.get(reference)
+    if not ref:
+        return []
+    out = []
+    for m in sorted(k for k in by if k != reference):
+        keys = sorted(set(ref) & set(by[m]))
+        if not keys:
+            continue
+        d = np.array([[(ref[k] == c) - (by[m][k] == c) for c in classes] for k in keys], dtype=np.float64)
+        mean, lo, hi = paired_bootstrap(d)
+        out += [OutcomeDiff(m, c, len(keys), float(mean[i]), float(lo[i]), float(hi[i])) for i, c in enumerate(classes)]
+    return out
+
+
+def format_outcome_differences(diffs: Sequence[OutcomeDiff], labels: Mapping[str, str] | None = None,
+                               reference: str = "NUE") -> str:
+    """Markdown table of :func:`outcome_differences`: one row per method, one column per class, in points."""
+    classes = list(dict.fromkeys(d.outcome for d in diffs))
+    names = {"never_near": "never near", "found_then_lost": "found, then lost", "near_unseen": "near, unseen"}
+    lines = ["| method | episodes | " + " | ".join(f"{reference} − method: {names.get(c, c)} (points, 95%)" for c in classes)
+             + " |", "|" + "---|" * (len(classes) + 2)]
+    for m in dict.fromkeys(d.method for d in diffs):
+        row = {d.outcome: d for d in diffs if d.method == m}
+        n = next(iter(row.values())).n
+        lines.append(f"| {(labels or {}).get(m, m)} | {n} | " + " | ".join(
+            f"{100 * row[c].diff:+.1f} [{100 * row[c].lo:+.1f}, {100 * row[c].hi:+.1f}]" for c in classes) + " |")
     return "\n".join(lines) + "\n"

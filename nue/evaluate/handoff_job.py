@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -21,6 +20,7 @@ from typing import Sequence
 from nue.errors import DataError
 from nue.evaluate.handoff import HANDOFF_KEY, handoff_of_record, record_handoff
 from nue.jobs import Job, run_jobs, worker_cached
+from nue.output_lock import hold_output
 from nue.sim.record import EpisodeRecord
 
 
@@ -92,13 +92,14 @@ def attach_handoff(records: Sequence[EpisodeRecord], path) -> list[EpisodeRecord
     return out
 
 
-def load_records_with_handoff(*paths) -> list[EpisodeRecord]:
-    """Records of JSON-lines files with their hand-off files (:func:`handoff_path`, where they exist) attached."""
+def load_records_with_handoff(*paths, drop_duplicates: bool = False, on_dropped=None) -> list[EpisodeRecord]:
+    """Records of JSON-lines files with their hand-off files (:func:`handoff_path`, where they exist) attached;
+    ``drop_duplicates`` and ``on_dropped`` as for :func:`nue.evaluate.diagnose.read_records`."""
     from nue.evaluate.diagnose import read_records
 
     out: list[EpisodeRecord] = []
     for p in paths:
-        recs = read_records(p)
+        recs = read_records(p, drop_duplicates=drop_duplicates, on_dropped=on_dropped)
         out += attach_handoff(recs, handoff_path(p)) if handoff_path(p).is_file() else recs
     return out
 
@@ -150,20 +151,21 @@ def handoff_job(job: Job) -> list[dict]:
 
 def run_handoff(records: Sequence[EpisodeRecord], out, episodes_dir, scenes_root="data/scenes", task: str = "paper",
                 workers: int = 1, progress: bool = True) -> Path:
-    """Recompute the hand-off of every record without one into the hand-off file ``out`` (resumes)."""
+    """Recompute the hand-off of every record without one into the hand-off file ``out`` (resumes), which this
+    process holds meanwhile (:func:`~nue.output_lock.hold_output`)."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
+    with hold_output(out):
+        return _run_handoff(records, out, episodes_dir, scenes_root, task, workers, progress)
+
+
+def _run_handoff(records: Sequence[EpisodeRecord], out: Path, episodes_dir, scenes_root, task: str, workers: int,
+                 progress: bool) -> Path:
     have = read_handoff_file(out)
     jobs = plan_handoff([r for r in records if record_key(r) not in have], episodes_dir, scenes_root, task)
 
-    def write(job: Job, lines: list[dict]) -> None:
-        data = "".join(json.dumps(line, sort_keys=True) + "\n" for line in lines).encode()
-        fd = os.open(out, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-        try:
-            os.write(fd, data)
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+    from nue.evaluate.runner import append_lines
 
-    run_jobs(jobs, handoff_job, on_result=write, workers=workers, desc="hand-off", progress=progress)
+    run_jobs(jobs, handoff_job, on_result=lambda job, lines: append_lines(out, lines), workers=workers,
+             desc="hand-off", progress=progress)
     return out

@@ -25,11 +25,12 @@ import numpy as np
 from scipy.stats import kendalltau
 
 from nue.evaluate import coverage as cov
-from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, read_records, record_diagnostics
+from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, record_diagnostics
 from nue.evaluate.metrics import unreachable_end
 from nue.evaluate.paired import (  # noqa: F401  (re-exported)
     METRIC_FNS, PairedDiff, SeedPairDiff, paired_differences, seed_dependence_markdown,
 )
+from nue.evaluate.record_keys import OnDropped
 from nue.evaluate.stats import paired_bootstrap, seed_episode_bootstrap, wilson_interval  # noqa: F401  (re-exported)
 from nue.evaluate.table import (  # noqa: F401  (re-exported)
     DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, method_label, order_methods,
@@ -221,13 +222,14 @@ def format_paired_markdown(diffs: Sequence[PairedDiff]) -> str:
 
 
 # --- files --------------------------------------------------------------------------------------
-def load_records(*paths) -> list[EpisodeRecord]:
+def load_records(*paths, drop_duplicates: bool = False, on_dropped: OnDropped | None = None) -> list[EpisodeRecord]:
     """Records from JSON-lines files (one ``EpisodeRecord.to_dict()`` per line; blank lines skipped),
-    checked by :func:`nue.evaluate.diagnose.read_records` (a bad file or line raises DataError), with the hand-off
-    files beside them attached (:func:`nue.evaluate.handoff_job.load_records_with_handoff`)."""
+    checked by :func:`nue.evaluate.diagnose.read_records` (a bad file or line, or a key recorded twice in a file,
+    raises DataError; ``drop_duplicates`` keeps the first record of each key instead), with the hand-off files
+    beside them attached (:func:`nue.evaluate.handoff_job.load_records_with_handoff`)."""
     from nue.evaluate.handoff_job import load_records_with_handoff
 
-    return load_records_with_handoff(*paths)
+    return load_records_with_handoff(*paths, drop_duplicates=drop_duplicates, on_dropped=on_dropped)
 
 
 SEED_NOTES = (
@@ -300,13 +302,23 @@ HANDOFF_NOTES = (
 def handoff_markdown(records: Sequence[EpisodeRecord]) -> str:
     """The hand-off table (:func:`nue.evaluate.handoff.format_handoff_markdown`) per method of the table (canonical
     names, table order) with its notes; '' when no record carries a hand-off."""
-    from nue.evaluate.handoff import format_handoff_markdown, handoff_summaries
+    from nue.evaluate.handoff import format_handoff_markdown, format_outcome_differences, handoff_summaries, outcome_differences
 
-    summaries = handoff_summaries(records, method_of=lambda r: canonical_method(r.method))
+    key = lambda r: canonical_method(r.method)  # noqa: E731
+    summaries = handoff_summaries(records, method_of=key)
     if not summaries:
         return ""
     ordered = {k: summaries[k] for k in order_methods(summaries)}
-    return f"{format_handoff_markdown(ordered, {k: method_label(k) for k in ordered})}\n{HANDOFF_NOTES}\n"
+    labels = {k: method_label(k) for k in ordered}
+    text = f"{format_handoff_markdown(ordered, labels)}\n{HANDOFF_NOTES}\n"
+    diffs = outcome_differences(records, method_of=key)
+    if diffs:
+        rank = {k: i for i, k in enumerate(order_methods({d.method for d in diffs}))}
+        diffs = sorted(diffs, key=lambda d: rank[d.method])
+        text += ("\nPaired differences of the failure classes to NUE (the share of episodes, NUE's minus the method's; "
+                 "below 0 = NUE fails that way less often; 95% paired bootstrap over the episodes both ran):\n\n"
+                 f"{format_outcome_differences(diffs, labels)}")
+    return text
 
 
 def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = True, task: str = "paper") -> dict[str, Path]:

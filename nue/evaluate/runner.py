@@ -2,8 +2,8 @@
 
 Every method runs the same episodes with the same per-episode seeds, through the shared agent loop,
 with its checkpoint's online NeRF memory (fixed initial weights from the checkpoint). Records are
-appended one line at a time (a single ``write`` + ``fsync``); rerunning the command skips the
-episodes already recorded, so a killed evaluation resumes. Local worker processes or Ray tasks, as
+appended one line at a time (a single ``write`` + ``fsync``) by the one process holding the file's lock;
+rerunning the command skips the episodes already recorded, so a killed evaluation resumes. Local worker processes or Ray tasks, as
 in ``nue collect``. ``swap_maps`` feeds a policy the memory maps recorded in a *different* episode of
 the same house (a control that shows whether the memory is used). Each episode of each method travels
 to its worker as an :class:`~nue.evaluate.eval_job.EvalJob`.
@@ -26,6 +26,9 @@ from nue.evaluate.coverage import CoverageTracker, cell_area, explorable_cells
 from nue.evaluate.eval_job import EvalJob, RunSettings
 from nue.evaluate.handoff import HANDOFF_KEY, GoalSightTracker, geodesic_along, handoff
 from nue.jobs import Job, episode_seed, run_jobs, worker_cached
+from nue.nerf.config import get_memory
+from nue.nerf.online import OnlineNeRF
+from nue.output_lock import hold_output
 from nue.policy.agent import ExpertAgent, RandomAgent
 from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
@@ -37,7 +40,7 @@ from nue.sim.explorer import ExplorerConfig, ExploringExpert
 from nue.sim.task import get_task
 from nue.train.checkpoint import PolicyHeader, check_compatible, load_agent, load_header
 
-EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore", "random": "random"}
+EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore", "expert-uncertainty": "uncertainty", "random": "random"}
 """Method specs that run an expert (or the random walk) instead of a checkpoint -> ``ExpertAgent(kind=...)``
 (``random``: :class:`~nue.policy.agent.RandomAgent`)."""
 
@@ -65,6 +68,8 @@ class EvalConfig:
     """Feed the policy the maps of another episode of the same house (control experiment)."""
     max_episodes: int = 0
     """Use only the first N episodes of each house (0 = all)."""
+    per_bin: int = 0
+    """Use only the first N episodes of each difficulty bin of each house (0 = all); applied before ``max_episodes``."""
     max_steps: int = 0
     """Override the preset's step limit (0 = keep it); for smoke runs only — records are not comparable."""
     skip_invalid: bool = False
@@ -96,12 +101,7 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
     """One job per (episode, method). Every episode is validated on its house's navigation grid; with
     ``cfg.skip_invalid`` invalid ones are left out and appended to ``skipped``
     (:class:`~nue.sim.episodes.InvalidEpisode`), else all of a file are named in one error."""
-    parsed = [parse_method(m) for m in methods]
-    names = [name for name, _ in parsed]
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise ConfigError("--checkpoint", f"method name {twice[0]!r} given twice; name them apart with name=path")
-    checked = {ckpt: checked_checkpoint(ckpt, cfg.task) for _, ckpt in parsed if ckpt is not None}
+    parsed, checked = parse_methods(methods, cfg.task)
     digests = {ckpt: sha for ckpt, (_, sha) in checked.items()}
     swap = "+swap" if cfg.swap_maps else ""
     files = episode_files(cfg.episodes_dir)
@@ -115,6 +115,8 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
         if skipped is not None:
             skipped.extend(loaded.skipped)
         eps = loaded.episodes
+        if cfg.per_bin:
+            eps = [eps[i] for i in first_per_bin(eps, cfg.per_bin)]
         if cfg.max_episodes:
             eps = eps[: cfg.max_episodes]
         for i, ep in enumerate(eps):
@@ -129,6 +131,17 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
     return jobs
 
 
+def first_per_bin(episodes, per_bin: int) -> list[int]:
+    """Indices of the first ``per_bin`` episodes of each difficulty bin (all for 0), in file order."""
+    taken: dict[str, int] = {}
+    out = []
+    for i, ep in enumerate(episodes):
+        if not per_bin or taken.get(ep.difficulty, 0) < per_bin:
+            taken[ep.difficulty] = taken.get(ep.difficulty, 0) + 1
+            out.append(i)
+    return out
+
+
 def house_folder(name: str, scenes_root, split: str = "val") -> Path:
     """The scene folder of an episode file's or record's house ``name``: ``<split>_<NN>`` of a known split (else of
     ``split``) is that split's generated house NN (generated under ``scenes_root`` if missing); any other name is
@@ -138,6 +151,17 @@ def house_folder(name: str, scenes_root, split: str = "val") -> Path:
         return ensure_house(prefix if prefix in SPLITS else split, int(index), scenes_root)
     except (ValueError, IndexError):
         return Path(scenes_root) / name
+
+
+def parse_methods(methods: list[str], task: str) -> tuple[list[tuple[str, str | None]], dict[str, tuple[PolicyHeader, str]]]:
+    """``(name, checkpoint or None)`` per method spec (:func:`parse_method`; a name given twice is refused) and
+    :func:`checked_checkpoint` of each checkpoint."""
+    parsed = [parse_method(m) for m in methods]
+    names = [name for name, _ in parsed]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ConfigError("--checkpoint", f"method name {twice[0]!r} given twice; name them apart with name=path")
+    return parsed, {ckpt: checked_checkpoint(ckpt, task) for _, ckpt in parsed if ckpt is not None}
 
 
 def checked_checkpoint(path: str, task: str) -> tuple[PolicyHeader, str]:
@@ -227,7 +251,12 @@ def done_keys(path: Path) -> set[str]:
 
 def append_record(path: Path, record: dict) -> None:
     """Append one JSON line with a single write and fsync it."""
-    line = (json.dumps(record, sort_keys=True) + "\n").encode()
+    append_lines(path, [record])
+
+
+def append_lines(path: Path, dicts: list[dict]) -> None:
+    """Append one JSON line per dict with a single write and fsync them (all or, killed mid-write, a torn last line)."""
+    line = "".join(json.dumps(d, sort_keys=True) + "\n" for d in dicts).encode()
     fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
     try:
         os.write(fd, line)
@@ -238,14 +267,17 @@ def append_record(path: Path, record: dict) -> None:
 
 def run_eval(methods: list[str], out, cfg: EvalConfig, workers: int = 1, ray_address: str | None = None,
              progress: bool = True, skipped: list | None = None) -> Path:
-    """Evaluate ``methods`` (checkpoint paths, ``name=path`` or ``expert``); records appended to ``out``.
+    """Evaluate ``methods`` (checkpoint paths, ``name=path`` or ``expert``); records appended to ``out``, which
+    this process holds for the whole run (:func:`~nue.output_lock.hold_output`: a second writer stops at once).
     Episodes left out by ``cfg.skip_invalid`` are appended to ``skipped``."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    jobs = plan_eval(methods, cfg, skipped)
-    done = check_resumable(out, jobs)
-    run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
-             is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="eval", progress=progress)
+    with hold_output(out):
+        jobs = plan_eval(methods, cfg, skipped)
+        done = check_resumable(out, jobs)
+        run_jobs(jobs, eval_episode, on_result=lambda job, rec: append_record(out, rec),
+                 is_done=lambda job: job.key in done, workers=workers, ray_address=ray_address, desc="eval",
+                 progress=progress)
     return out
 
 
@@ -285,6 +317,9 @@ def eval_episode(job: Job) -> dict:
     extra = {"key": job.key, "seed": p.seed, "checkpoint": p.checkpoint, "settings": p.settings.to_dict()}
     if p.checkpoint is None:
         agent, memory = _expert_agent(p), None
+        if p.expert == "uncertainty":  # it reads its own memory's panorama (default initial weights)
+            memory = worker_cached(("memory", "fast_pano", p.device, env.task.name), lambda: OnlineNeRF(
+                get_memory("fast_pano"), env.task.camera, device=p.device))
     else:
         agent, memory = _policy(p, env)
         extra["git_commit"] = agent.git_commit

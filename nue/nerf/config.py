@@ -66,6 +66,17 @@ class MemoryConfig:
     observed surface distance, metres (0 = the paper's loss)."""
     unseen_variance: float = 0.0
     """beta_max^2 in ``I_u += T_{N+1} beta_max^2`` (0 = the paper's I_u = sum w^2 beta^2)."""
+    panorama_headings: int = 0
+    """Also render a panorama of I_u at the robot's position (``MemoryMaps.panorama``): this many headings evenly
+    around it, the first the robot's own (0 = none). Only a memory that can render any view can show the policy
+    how uncertain the directions behind and beside it are."""
+    panorama_height: int = 6
+    """Height of each panoramic view, pixels (subsampled from the camera's as the maps are)."""
+    panorama_width: int = 8
+    """Width of each panoramic view, pixels."""
+    panorama_samples: int = 32
+    """Samples per panoramic ray, uniform over ``[near, no_depth_range]`` of the sampler (no depth is observed in
+    those directions to guide them)."""
     render_chunk: int = 1 << 16
     """Sample points per forward pass while rendering maps (bounds memory, not results)."""
     init_seed: int = 0
@@ -77,13 +88,16 @@ class MemoryConfig:
         if self.field_type not in ("mlp", "grid"):
             raise ConfigError(None, f"memory field_type must be 'mlp' or 'grid', got {self.field_type!r}")
         for name in ("train_rays", "train_samples", "render_samples", "map_height", "map_width",
-                     "update_every", "observe_every", "replay_size"):
+                     "update_every", "observe_every", "replay_size", "panorama_height", "panorama_width",
+                     "panorama_samples"):
             if getattr(self, name) < 1:
                 raise ConfigError(None, f"memory {name} must be >= 1, got {getattr(self, name)}")
         if not 0.0 <= self.newest_fraction <= 1.0:
             raise ConfigError(None, f"memory newest_fraction must lie in [0, 1], got {self.newest_fraction}")
         if self.lag < 0:
             raise ConfigError(None, f"memory lag must be >= 0, got {self.lag}")
+        if self.panorama_headings < 0:
+            raise ConfigError(None, f"memory panorama_headings must be >= 0, got {self.panorama_headings}")
 
     def replace(self, **changes) -> "MemoryConfig":
         """A copy with some fields changed (``dataclasses.replace``)."""
@@ -95,6 +109,9 @@ class MemoryConfig:
         d = dataclasses.asdict(self)
         if not d["lag"]:
             del d["lag"]
+        if not d["panorama_headings"]:  # likewise the panorama's fields, written only when it is on
+            for k in ("panorama_headings", "panorama_height", "panorama_width", "panorama_samples"):
+                del d[k]
         return d
 
     @classmethod
@@ -116,7 +133,7 @@ MEMORY_PRESETS: dict[str, MemoryConfig] = {
     # of 1024 rays per step (2x the authors' rays and 20x their gradient steps per step); the issue's
     # "200 iterations of 10,800 rays" would cost ~200 s per step on this CPU.
     "reference": MemoryConfig(name="reference", train_rays=1024, iters_per_update=20),
-    # Our default (benchmarks/README.md, "NeRF memory", has the measurements behind each choice): a
+    # Our default (docs/history/benchmarks.md, "NeRF memory", has the measurements behind each choice): a
     # voxel-grid field (local parameters: never-sampled space keeps near-zero density, so with
     # T_{N+1} beta_max^2 it renders as uncertain), 8 samples in +-0.3 m around the observed surface,
     # 2 iterations of 512 rays per step (a quarter from the newest frame), maps at 45 x 60.
@@ -136,6 +153,8 @@ MEMORY_PRESETS: dict[str, MemoryConfig] = {
         unseen_variance=1.0,
     ),
 }
+MEMORY_PRESETS["fast_pano"] = MEMORY_PRESETS["fast"].replace(name="fast_pano", panorama_headings=8)
+"""``fast`` with an 8-heading panorama of I_u (6 x 8 pixels each, 32 samples per ray): issue 37's panoramic uncertainty."""
 
 
 def get_memory(name: str | MemoryConfig | dict) -> MemoryConfig:

@@ -58,6 +58,9 @@ class MemoryMaps:
     """(1, h, w) rendered z-depth, metres (for figures)."""
     transmittance: torch.Tensor
     """(1, h, w) transmittance left after the last sample, T_{N+1} (1 = the field saw nothing there)."""
+    panorama: torch.Tensor | None = None
+    """(K, hp, wp) I_u of K views at the robot's position, heading ``yaw + 2 pi k / K`` (k = 0: the robot's own),
+    if the preset renders a panorama (``panorama_headings``); else None."""
 
 
 @dataclass
@@ -96,6 +99,7 @@ class OnlineNeRF:
         self._map_pixels = self._flat_pixels(rows, cols)
         self._map_dirs = self.pixel_rays.dirs[self._map_pixels]
         self._map_range_per_z = self.pixel_rays.range_per_z[self._map_pixels]
+        self._pano_pixels: torch.Tensor | None = None
         self.reset(0)
 
     def _load_initial_weights(self) -> None:
@@ -302,8 +306,40 @@ class OnlineNeRF:
     @torch.no_grad()
     def render_maps(self, pose, depth, floor_z: float = 0.0) -> MemoryMaps:
         """Maps for the current pose at the preset's (map_height, map_width), depth-guided by the
-        current full-resolution depth frame. Does not change the memory."""
-        return self.render_view(pose, depth, self.config.map_height, self.config.map_width, floor_z)
+        current full-resolution depth frame (and the panorama if the preset has one). Does not change the memory."""
+        maps = self.render_view(pose, depth, self.config.map_height, self.config.map_width, floor_z)
+        if self.config.panorama_headings:
+            maps.panorama = self.render_panorama(pose, floor_z)
+        return maps
+
+    @torch.no_grad()
+    def render_panorama(self, pose, floor_z: float = 0.0, headings: int | None = None) -> torch.Tensor:
+        """I_u ``(K, hp, wp)`` of ``K`` (default ``panorama_headings``) views at the robot's position, view k heading
+        ``yaw + 2 pi k / K``, at the preset's panorama size; no depth guides them: ``panorama_samples`` samples per
+        ray spread over ``[near, no_depth_range]``. Does not change the memory."""
+        cfg = self.config
+        k = int(headings if headings is not None else cfg.panorama_headings)
+        if k < 1:
+            raise ValueError("render_panorama: needs at least one heading")
+        pose = check_pose(pose)
+        self._ensure_frame(pose, floor_z)
+        if self._pano_pixels is None:  # the panorama's pixels, once
+            self._pano_pixels = self._flat_pixels(*map_pixels(self.camera, cfg.panorama_height, cfg.panorama_width))
+        pix = self._pano_pixels
+        transforms = torch.stack([self.pixel_rays.episode_from_camera(
+            (pose[0], pose[1], pose[2] + 2.0 * np.pi * i / k), self.frame, floor_z) for i in range(k)])
+        per_ray = transforms.repeat_interleave(pix.numel(), dim=0)  # (K * P, 4, 4): view by view
+        bundle = self.pixel_rays.bundle(per_ray, pix.repeat(k), torch.full((k * pix.numel(),), float("nan"),
+                                                                           device=self.device))
+        self.field.eval()
+        chunk = max(1, cfg.render_chunk // cfg.panorama_samples)
+        parts = []
+        with torch.inference_mode():
+            for s in range(0, k * pix.numel(), chunk):
+                sub = RayBundle(bundle.origins[s : s + chunk], bundle.directions[s : s + chunk], bundle.ranges[s : s + chunk])
+                _, out, w, transmittance = self._query(sub, cfg.panorama_samples, None)
+                parts.append(render_uncertainty(w, out.variance, transmittance, cfg.unseen_variance))
+        return torch.cat(parts).reshape(k, cfg.panorama_height, cfg.panorama_width).clone()
 
     @torch.no_grad()
     def render_view(self, pose, depth, height: int, width: int, floor_z: float = 0.0) -> MemoryMaps:

@@ -13,12 +13,14 @@ import torch
 
 from nue.policy.base import PolicyModel, choose_actions
 from nue.policy.inputs import prepare_goal, prepare_input
+from nue.policy.uncertainty_expert import UncertaintyExpert
 from nue.sim.env import ImageNavEnv
 from nue.sim.expert import ExpertConfig, GeodesicExpert
 from nue.sim.explorer import ExplorerConfig, ExploringExpert
 
-EXPERT_KINDS = ("geodesic", "explore")
-"""``ExpertAgent(kind=...)``: the geodesic expert, or the exploring expert (``nue.sim.explorer``)."""
+EXPERT_KINDS = ("geodesic", "explore", "uncertainty")
+"""``ExpertAgent(kind=...)``: the geodesic expert, the exploring expert (``nue.sim.explorer``), or the
+uncertainty-seeking expert (:mod:`nue.policy.uncertainty_expert`; needs a memory whose maps carry a panorama)."""
 
 
 class ExpertAgent:
@@ -44,6 +46,8 @@ class ExpertAgent:
             if self.kind == "explore":
                 self.expert = ExploringExpert(env.navgrid, env.task, self.explorer_config or ExplorerConfig(),
                                               self.config, floor_z=env.floor_z)
+            elif self.kind == "uncertainty":
+                self.expert = UncertaintyExpert(env.navgrid, env.task, expert_config=self.config, floor_z=env.floor_z)
             else:
                 self.expert = GeodesicExpert(env.navgrid, env.task, self.config)
         self.expert.reset(env.nav_goal_xy)
@@ -51,6 +55,12 @@ class ExpertAgent:
     def act(self, obs, maps) -> int:
         if self.kind == "explore":
             return self.expert.act(obs["pose"], obs["depth"])
+        if self.kind == "uncertainty":
+            panorama = getattr(maps, "panorama", None)
+            if panorama is None:
+                raise ValueError("the uncertainty expert needs memory maps with a panorama (a memory preset with "
+                                 "panorama_headings > 0, e.g. fast_pano)")
+            return self.expert.act(obs["pose"], obs["depth"], panorama)
         return self.expert.act(obs["pose"])
 
     def executed(self, action: int) -> None:

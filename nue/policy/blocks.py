@@ -50,7 +50,7 @@ class SubsampledPointwiseConv(nn.Conv2d):
     ``nn.Conv2d(in_ch, out_ch, 1, stride=s, bias=False)``: a 1x1 kernel with stride s reads exactly the pixels
     (s i, s j), so ``(B, in_ch, H, W) -> (B, out_ch, ceil(H / s), ceil(W / s))``. oneDNN's CPU kernels for a strided
     1x1 convolution are slow (forward and backward ~2.5x the time of slicing first at batch 64 on 45 x 60 x 67;
-    ``benchmarks/README.md``, "Training throughput"); the sum over input channels may round differently (~1e-6).
+    ``docs/history/benchmarks.md``, "Training throughput"); the sum over input channels may round differently (~1e-6).
     """
 
     def __init__(self, in_ch: int, out_ch: int, stride: int):

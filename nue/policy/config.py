@@ -20,8 +20,8 @@ preset          f_u    AT     CBAM   note
 ==============  =====  =====  =====  ==========================================
 
 The five ``abl_*`` rows are ``nue`` with components switched off, so they also feed the goal to f_p:
-an ablation differs from the full model only in what Table I switches. (Before the v5 recipe they
-were built on the paper's layout; checkpoints keep their own config, so old ones load unchanged.)
+an ablation differs from the full model only in what Table I switches. A checkpoint keeps its own model config,
+so one whose ablation was built on the paper's layout (the v1 rows of ``results/v1/checkpoints``) loads unchanged.
 """
 
 from __future__ import annotations

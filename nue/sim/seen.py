@@ -259,3 +259,12 @@ def seen_cells(depth: np.ndarray, pose, camera: CameraConfig, grid: GridLike, fl
     """``(seen_floor_cells(...), seen_obstacle_cells(...))`` of one frame, back-projecting it once."""
     frame = _Frame(depth, pose, camera, floor_z)
     return _floor_mask(frame, pose, camera, grid, floor_z, config), _obstacle_mask(frame, pose, grid, floor_z, config)
+
+
+def goal_in_view(depth: np.ndarray, pose, goal_cell: tuple[int, int], goal_xy, camera: CameraConfig, grid: GridLike,
+                 floor_z: float = 0.0, view_range: float = 3.0, config: CoverageConfig = CoverageConfig()) -> bool:
+    """Whether the goal is in view from ``pose`` (x, y, yaw): the robot is at most ``view_range`` metres from ``goal_xy``
+    and ``depth`` (H, W[, 1]) metres sees the floor of ``goal_cell`` (row, col) — the exploring expert's switch."""
+    if float(np.hypot(pose[0] - goal_xy[0], pose[1] - goal_xy[1])) > view_range:
+        return False
+    return bool(seen_floor_cells(depth, pose, camera, grid, floor_z, config)[goal_cell])

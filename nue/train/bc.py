@@ -11,6 +11,7 @@ Multi-process data parallel: launch with ``torchrun``; ranks split each batch (g
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -25,6 +26,7 @@ from tqdm import tqdm
 
 from nue.errors import CheckpointError, ConfigError, DataError
 from nue.jobs import fail_point
+from nue.output_lock import hold_output
 from nue.policy import build_model
 from nue.policy.base import PolicyOutput, angle_l1_loss, wrap_angle_t
 from nue.policy.config import get_model_config
@@ -88,12 +90,13 @@ class TrainConfig:
     """``auto`` (default): ``bf16`` where the device runs bfloat16 natively (CPU with AVX512-BF16/AMX, CUDA
     with bf16), else ``fp32``; ``bf16``: forward and backward under bfloat16 autocast (weights, optimiser and
     loss stay float32), about 2x the samples/s on CPUs with AVX512-BF16 (``make bench``) and the same
-    held-out accuracy step for step (fp32 vs bf16 curves in ``benchmarks/README.md``); ``fp32``: no autocast."""
+    held-out accuracy step for step (fp32 vs bf16 curves: the benchmarks history in ``docs/history/``); ``fp32``: no
+    autocast."""
     compile: bool = False
     """``torch.compile`` (inductor) the training forward and backward: the same arithmetic, fused and rounded
     differently; ~1.5x the samples/s on CPU (``benchmarks/train.py``) for up to ~1 min of compiling; needs a C++
     compiler (CPU) or Triton (CUDA). Evaluation and selection run eager; a resume may switch it. Works in fp32 and
-    bf16 (before CBAM's max pools used ``max(...).values``, NUE compiled under bf16 had NaN gradients at the first step)."""
+    bf16."""
     map_dropout: float = 0.0
     """Probability per sample that its memory maps (I_u, I_cog) are replaced by those of another sample of
     the batch, so the policy cannot rely on the maps alone (e.g. for obstacle avoidance); 0 = off."""
@@ -229,7 +232,12 @@ FAIL_AT_ENV = "NUE_FAIL_AT_STEP"
 
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> TrainResult:
-    """Run (or resume from ``out/last.pt``) behaviour cloning."""
+    """Run (or resume from ``out/last.pt``) behaviour cloning; rank 0 holds the run folder (one writer per output)."""
+    with hold_output(cfg.out) if _dist()[0] == 0 else contextlib.nullcontext():
+        return _train(cfg, resume, progress)
+
+
+def _train(cfg: TrainConfig, resume: bool, progress: bool) -> TrainResult:
     rank, world = _dist()
     device = torch.device(cfg.device)
     out_dir = Path(cfg.out)

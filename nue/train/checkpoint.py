@@ -4,16 +4,21 @@ A checkpoint embeds the task preset, the memory (NeRF) config and its fixed init
 model config, the demonstration manifest's hash and scene hashes, the git commit and the training
 config. In code that description is a :class:`PolicyHeader`; the file (``torch.save`` of a dict,
 format ``nue-checkpoint/1``) holds its :meth:`~PolicyHeader.to_dict` next to the weights and training
-state. Saving is atomic (temporary file + rename). ``load_header`` reads the description,
-``load_policy`` rebuilds the network; ``check_compatible`` refuses a task/memory preset or scene set
-that differs from the stored one; ``load_agent`` gives the agent and memory of the shared loop (eval,
-DAgger collection, the demo), ``load_memory`` the memory alone (``nue view``'s replay).
+state, all plain data: dicts, lists, tuples, strings, numbers, booleans, None and tensors. Saving is atomic
+(temporary file + rename) and refuses anything else; loading uses ``torch.load(..., weights_only=True)``, which
+rebuilds only such data and refuses a file asking for any other object, so a checkpoint never runs code.
+``load_header`` reads the description, ``load_policy`` rebuilds the network; ``check_compatible`` refuses a
+task/memory preset or scene set that differs from the stored one; ``load_agent`` gives the agent and memory of the
+shared loop (eval, DAgger collection, the demo), ``load_memory`` the memory alone (``nue view``'s replay).
 """
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import os
+import pickle
+import re
 import subprocess
 import tempfile
 from dataclasses import dataclass, field
@@ -111,7 +116,11 @@ def git_commit() -> str:
 
 
 def save_checkpoint(path, payload: dict) -> Path:
-    """Write ``payload`` (with ``format`` added) atomically with ``torch.save``."""
+    """Write ``payload`` (with ``format`` added) atomically with ``torch.save``; TypeError if it holds anything but
+    plain data (:func:`plain_data_problem`), which :func:`load_checkpoint` could not read back."""
+    problem = plain_data_problem(payload)
+    if problem:
+        raise TypeError(f"checkpoint {path}: {problem}")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -126,7 +135,8 @@ def save_checkpoint(path, payload: dict) -> Path:
 
 
 def load_checkpoint(path, map_location="cpu") -> dict:
-    """A checkpoint file's dict; :class:`CheckpointError` if it is missing, a folder, unreadable, of
+    """A checkpoint file's dict, read with ``weights_only=True`` (tensors and plain data only; nothing in the file
+    is executed); :class:`CheckpointError` if it is missing, a folder, unreadable, asks for other objects, is of
     another format, or holds weights (model or memory) that are not finite."""
     path = Path(path)
     if path.is_dir():
@@ -134,7 +144,14 @@ def load_checkpoint(path, map_location="cpu") -> dict:
     if not path.is_file():
         raise CheckpointError(path, "checkpoint not found")
     try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=False)
+        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as exc:
+        if "weights only" not in str(exc).lower():  # a pickle cut short or otherwise corrupt
+            raise CheckpointError(path, f"cannot read checkpoint ({type(exc).__name__})") from None
+        wants = re.search(r"GLOBAL ([\w.]+)", str(exc))
+        what = f" ({wants.group(1)})" if wants else ""
+        raise CheckpointError(path, f"refused: holds objects other than tensors and plain data{what}; nue reads "
+                                    "checkpoints as data only and runs no code from them") from None
     except Exception as exc:
         raise CheckpointError(path, f"cannot read checkpoint ({type(exc).__name__})") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
@@ -144,6 +161,30 @@ def load_checkpoint(path, map_location="cpu") -> dict:
         if bad:
             raise CheckpointError(path, f"weights are not finite: {part} {bad} holds NaN or inf")
     return ckpt
+
+
+PLAIN = (str, int, float, bool, type(None))
+"""Types of the leaves a checkpoint may hold besides tensors (exactly these: a numpy float is not one)."""
+
+
+def plain_data_problem(value, where: str = "") -> str:
+    """'' if ``value`` is plain data, all of which ``weights_only=True`` reads back: tensors and :data:`PLAIN`
+    values in dicts (also ordered ones, as state dicts are) with string or int keys, lists and tuples; else which
+    entry is not, e.g. ``"train_config.out is a PosixPath, not plain data"``."""
+    if type(value) in PLAIN or isinstance(value, torch.Tensor):
+        return ""
+    if type(value) in (dict, collections.OrderedDict):
+        for k, v in value.items():
+            name = f"{where}.{k}" if where else str(k)
+            if not isinstance(k, (str, int)):
+                return f"{name}: key of type {type(k).__name__}"
+            problem = plain_data_problem(v, name)
+            if problem:
+                return problem
+        return ""
+    if type(value) in (list, tuple):
+        return next((p for i, v in enumerate(value) if (p := plain_data_problem(v, f"{where}[{i}]"))), "")
+    return f"{where or 'the payload'} is a {type(value).__name__}, not plain data"
 
 
 def _non_finite(state, prefix: str = "") -> str:

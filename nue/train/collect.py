@@ -25,6 +25,7 @@ from nue.errors import DataError
 from nue.jobs import Job, episode_seed, run_jobs, worker_cached
 from nue.nerf.config import MemoryConfig, get_memory
 from nue.nerf.online import OnlineNeRF
+from nue.output_lock import hold_output
 from nue.policy.agent import EXPERT_KINDS, ExpertAgent, MixedAgent, NoisyAgent
 from nue.policy.config import get_model_config
 from nue.policy.inputs import prepare_input, resize_area
@@ -174,14 +175,15 @@ def collect(out, cfg: CollectConfig, scenes_root, workers: int = 1, ray_address:
     part of the manifest — the content is the same whatever the encoding, as after ``nue convert`` — but
     ``out/storage.json`` records it and a resumed collection refuses another one (DataError)."""
     out, scenes_root = Path(out), Path(scenes_root)
-    jobs, manifest = plan_collection(cfg, scenes_root)
-    write_manifest(out, manifest)
-    _check_storage(out, storage)
-    jobs = [Job(j.key, dataclasses.replace(j.payload, storage=storage)) for j in jobs]
-    run_jobs(jobs, collect_episode, on_result=lambda job, res: _write(out, job, res),
-             is_done=lambda job: is_complete(episode_path(out, job.key)), workers=workers,
-             ray_address=ray_address, desc="collect", progress=progress)
-    return summarize_collection(out, jobs)
+    with hold_output(out):  # one writer per collection folder
+        jobs, manifest = plan_collection(cfg, scenes_root)
+        write_manifest(out, manifest)
+        _check_storage(out, storage)
+        jobs = [Job(j.key, dataclasses.replace(j.payload, storage=storage)) for j in jobs]
+        run_jobs(jobs, collect_episode, on_result=lambda job, res: _write(out, job, res),
+                 is_done=lambda job: is_complete(episode_path(out, job.key)), workers=workers,
+                 ray_address=ray_address, desc="collect", progress=progress)
+        return summarize_collection(out, jobs)
 
 
 def _check_storage(out: Path, storage: StepStorage) -> None:

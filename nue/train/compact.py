@@ -144,7 +144,7 @@ class QuantizedArray:
 class StepStorage:
     """How ``nue collect`` stores the per-step arrays of a demonstration (bits of :func:`quantize`; 0 = float16).
 
-    The default takes a step from 428 KiB (all float16) to about 140 KiB; ``benchmarks/README.md`` has the
+    The default takes a step from 428 KiB (all float16) to about 140 KiB; ``docs/history/benchmarks.md`` has the
     measured quantisation error and held-out accuracy.
     """
 

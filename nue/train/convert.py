@@ -21,6 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from nue.errors import DataError
+from nue.output_lock import hold_output
 from nue.train.compact import QuantizedArray, StepStorage
 from nue.train.episode_file import read_episode_file, write_episode_file
 from nue.train.manifest import read_manifest, write_manifest
@@ -84,9 +85,14 @@ def convert_collection(src, out, storage: StepStorage = StepStorage(), progress:
     """Copy the collection folder ``src`` to ``out`` with its step arrays stored as ``storage`` says.
 
     Refuses (:class:`DataError`) a source without a manifest, ``out`` = ``src``, and an ``out`` that holds
-    another collection. Rerunning after an interruption converts only the missing episodes.
+    another collection. Rerunning after an interruption converts only the missing episodes. ``out`` is held by
+    this process meanwhile (:func:`~nue.output_lock.hold_output`).
     """
-    src, out = Path(src), Path(out)
+    with hold_output(out):
+        return _convert(Path(src), Path(out), storage, progress)
+
+
+def _convert(src: Path, out: Path, storage: StepStorage, progress: bool) -> ConvertSummary:
     manifest = read_manifest(src)
     if out.resolve() == src.resolve():
         raise DataError(out, "is the source collection; convert into another folder")

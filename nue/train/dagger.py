@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from nue.errors import DataError
+from nue.output_lock import hold_output
 from nue.train.bc import TrainConfig, TrainResult, train
 from nue.train.collect import CollectConfig, collect
 from nue.train.collect_job import AgentSpec
@@ -49,7 +50,14 @@ class DaggerConfig:
 
 def run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: DaggerConfig, scenes_root,
                workers: int = 1, ray_address: str | None = None, progress: bool = True) -> list[dict]:
-    """Run behaviour cloning then ``dagger.rounds`` DAgger rounds; returns one summary dict per round."""
+    """Run behaviour cloning then ``dagger.rounds`` DAgger rounds; returns one summary dict per round. The run
+    folder is held by this process meanwhile (:func:`~nue.output_lock.hold_output`)."""
+    with hold_output(train_cfg.out):
+        return _run_dagger(train_cfg, collect_cfg, dagger, scenes_root, workers, ray_address, progress)
+
+
+def _run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: DaggerConfig, scenes_root, workers: int,
+                ray_address: str | None, progress: bool) -> list[dict]:
     out = Path(train_cfg.out)
     expert_data = train_cfg.data.split(",")[0]
     t0 = time.perf_counter()

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from nue.errors import DataError
 from nue.evaluate.metrics import summarize
+from nue.output_lock import hold_output
 from nue.sim.record import EpisodeRecord
 
 
@@ -84,10 +85,15 @@ def snapshots(run_dir: Path) -> list[Path]:
 
 
 def select_checkpoint(run_dir, cfg: SelectConfig = SelectConfig(), progress: bool = True) -> list[CandidateScore]:
-    """Run the last ``cfg.candidates`` snapshots of ``run_dir`` in closed loop, copy the best to ``best.pt``."""
+    """Run the last ``cfg.candidates`` snapshots of ``run_dir`` in closed loop, copy the best to ``best.pt``;
+    the run folder is held by this process meanwhile (:func:`~nue.output_lock.hold_output`)."""
+    with hold_output(run_dir):
+        return _select(Path(run_dir), cfg, progress)
+
+
+def _select(run_dir: Path, cfg: SelectConfig, progress: bool) -> list[CandidateScore]:
     from nue.evaluate.runner import EvalConfig, run_eval
 
-    run_dir = Path(run_dir)
     cands = snapshots(run_dir)[-max(cfg.candidates, 1):]
     if not cands:
         raise DataError(run_dir / "snapshots", "no snapshots to select from (train with --select closed_loop)")

@@ -3,29 +3,31 @@
 The viewer is Rerun's web viewer, served by the ``rerun-sdk`` wheel itself (no network needed). One
 recording stream has up to two sinks: a gRPC server the page reads while the episode runs
 (``ViewConfig.grpc_port``; the page itself on ``ViewConfig.port``) and an ``.rrd`` file that opens later
-(``rerun rec.rrd``, or ``rerun --web-viewer rec.rrd`` for a browser). What is drawn:
+(``rerun rec.rrd``, or ``rerun --web-viewer rec.rrd`` for a browser). Both servers listen on
+``ViewConfig.host``, the loopback unless asked otherwise (:mod:`nue.viz.view_server`). What is drawn:
 :mod:`nue.viz.view_scene`; screenshots: :mod:`nue.viz.view_shot`.
 
 A live run is :func:`nue.rollout.run_episode` with an ``on_step`` callback that logs each step (the
 maps the policy saw, before the memory learns the frame). A replay reads the poses of a record's
 ``extra['trajectory']`` and re-renders the frames there; the policy does not run, and the memory is
-re-run along the recorded poses only when asked (``ReplaySource.maps``).
+re-run along the recorded poses only when asked (``ReplaySource.maps``). A replay finds the record's episode
+file itself (:func:`find_episode`): the episode set whose file holds an episode with the record's digest.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import socket
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from urllib.parse import quote
 
 import numpy as np
 import rerun as rr
 
 from nue.errors import ConfigError, DataError, EpisodeError
+from nue.evaluate.record_keys import OnDropped, UniqueKeys, dropped_message
 from nue.nerf.online import OnlineNeRF
 from nue.policy.agent import ExpertAgent
 from nue.rollout import run_episode
@@ -33,11 +35,12 @@ from nue.scene.generator import SPLITS, ensure_house
 from nue.scene.navgrid import NavGrid
 from nue.scene.scene import Scene
 from nue.sim.env import ImageNavEnv, make_env
-from nue.sim.episodes import load_episodes
+from nue.sim.episodes import Episode, load_episodes
 from nue.sim.record import EpisodeRecord, RecordFormatError
 from nue.sim.task import get_task
 from nue.train.checkpoint import load_agent, load_header, load_memory
 from nue.viz.view_scene import GOAL_COLOUR, TRAJECTORY_COLOUR, EpisodeLogger, SceneViewConfig, blueprint
+from nue.viz.view_server import PageServer, check_port, grpc_url, is_loopback, page_url, url_host
 from nue.viz.view_shot import find_chromium, has_colour, screenshot_page
 
 
@@ -45,10 +48,13 @@ from nue.viz.view_shot import find_chromium, has_colour, screenshot_page
 class ViewConfig:
     """Where the viewer serves and what it writes."""
 
+    host: str = "127.0.0.1"
+    """Interface the page and its data stream listen on: 127.0.0.1 = this machine only; an address of another
+    interface, or 0.0.0.0 for every one, makes the run visible to anyone who can reach that interface."""
     port: int = 9090
-    """Port of the web page (all interfaces)."""
+    """Port of the web page."""
     grpc_port: int = 9876
-    """Port of the data stream the page reads (Rerun's gRPC server, all interfaces)."""
+    """Port of the data stream the page reads (Rerun's gRPC server)."""
     serve: bool = True
     """Serve the page; False only writes ``save``."""
     save: str | None = None
@@ -89,58 +95,57 @@ class ReplaySource:
     """Where the record's scene folder is (validation houses are generated there if missing)."""
     episodes: str | None = None
     """Episode file holding the record's episode; default ``episodes_dir/<scene>.json``."""
-    episodes_dir: str = "episodes/val"
-    """Folder of per-house episode files, used when ``episodes`` is None."""
+    episodes_dir: str | None = None
+    """Folder of per-house episode files, used when ``episodes`` is None; None: the folder under ``episodes/``
+    whose ``<scene>.json`` holds the record's episode (:func:`find_episode`)."""
     task: str = "paper"
     """Task preset the record was made with."""
     maps: bool = False
     """Re-run the memory along the recorded poses to show I_u / I_cog (the policy still does not run)."""
     checkpoint: str | None = None
     """With ``maps``: take the memory's preset and initial weights from this checkpoint (default: ``fast``)."""
+    drop_duplicates: bool = False
+    """A records file with a key recorded twice is refused; with this, the first record of each key is used."""
 
 
 # ----------------------------------------------------------------------------------------- serving
-def check_port(port: int, option: str) -> None:
-    """:class:`ConfigError` (``error: <option>: port N is taken ...``) unless a server can listen on ``port``."""
-    if not 0 < port < 65536:
-        raise ConfigError(option, f"port {port} is outside 1..65535")
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind(("0.0.0.0", port))
-        except OSError:
-            raise ConfigError(option, f"port {port} is taken (another program listens there); choose another") from None
-
-
-def page_url(cfg: ViewConfig, host: str = "localhost") -> str:
-    """The page's address, pointing the viewer at the recording's gRPC stream."""
-    return f"http://{host}:{cfg.port}/?url={quote(f'rerun+http://{host}:{cfg.grpc_port}/proxy', safe='')}"
-
-
 class Viewer:
-    """A recording stream with its sinks (the served page and/or an ``.rrd`` file)."""
+    """A recording stream with its sinks (the page and its data stream on ``cfg.host``, and/or an ``.rrd`` file)."""
 
     def __init__(self, cfg: ViewConfig, name: str):
         if not cfg.serve and not cfg.save:
             raise ConfigError("--no-serve", "nothing to do: give --save FILE.rrd, or serve the page")
         if cfg.serve:
-            check_port(cfg.port, "--port")
-            check_port(cfg.grpc_port, "--grpc-port")
+            check_port(cfg.port, "--port", cfg.host)
+            check_port(cfg.grpc_port, "--grpc-port", cfg.host)
             if cfg.port == cfg.grpc_port:
                 raise ConfigError("--grpc-port", "must differ from --port")
         self.cfg = cfg
+        self.page: PageServer | None = None
         self.rec = rr.RecordingStream("nue", recording_id=name)
         sinks = []
         if cfg.serve:
-            sinks.append(rr.GrpcServerSink(port=cfg.grpc_port))
+            sinks.append(rr.GrpcServerSink(bind_ip=cfg.host, port=cfg.grpc_port))
         if cfg.save:
             Path(cfg.save).parent.mkdir(parents=True, exist_ok=True)
             sinks.append(rr.FileSink(str(cfg.save)))
         self.rec.set_sinks(*sinks, default_blueprint=blueprint())
         self.rec.send_recording_name(name)
+        self.url = self.local_url = None
+        """The page's address (for every interface: under this machine's name), and the one a browser here opens."""
         if cfg.serve:
-            rr.serve_web_viewer(web_port=cfg.port, open_browser=False)
-        self.url = page_url(cfg) if cfg.serve else None
+            self.url = page_url(url_host(cfg.host), cfg.port, cfg.grpc_port)
+            self.local_url = page_url(url_host(cfg.host, local=True), cfg.port, cfg.grpc_port)
+            try:
+                self.page = PageServer(cfg.host, cfg.port, grpc_url(url_host(cfg.host, local=True), cfg.grpc_port))
+            except BaseException:
+                self.rec.disconnect()
+                raise
+
+    @property
+    def public(self) -> bool:
+        """Whether the page and its data are served beyond this machine."""
+        return self.cfg.serve and not is_loopback(self.cfg.host)
 
     def logger(self, env) -> EpisodeLogger:
         """A logger for the current episode of ``env`` (after its reset)."""
@@ -153,9 +158,14 @@ class Viewer:
         self.rec.flush()
 
     def close(self) -> None:
-        """Close the sinks: the ``.rrd`` file gets its footer, the gRPC server stops (the page loses its data)."""
-        self.rec.flush()
-        self.rec.disconnect()
+        """Close the sinks: the ``.rrd`` file gets its footer, the gRPC server stops (the page loses its data), and
+        the page server ends."""
+        try:
+            self.rec.flush()
+            self.rec.disconnect()
+        finally:
+            if self.page is not None:
+                self.page.close()
 
 
 # ------------------------------------------------------------------------------------------ sources
@@ -211,13 +221,16 @@ def run_live(viewer: Viewer, src: LiveSource) -> EpisodeRecord:
     return record
 
 
-def find_record(paths, key: str) -> EpisodeRecord:
+def find_record(paths, key: str, drop_duplicates: bool = False, on_dropped: OnDropped | None = None) -> EpisodeRecord:
     """The record whose ``extra['key']`` or ``method/scene/episode_id`` (the method as RESULTS.md names it: records
     renamed after their run, ``nue_v2``, keep the key ``nue/...`` of that run) is ``key`` or ends in ``/key``; where
-    several match, the ones whose ``method/scene/episode_id`` is ``key``; :class:`DataError` if none or still several."""
+    several match, the ones whose ``method/scene/episode_id`` is ``key``; :class:`DataError` if none or still several.
+    A file holding a key twice is refused (:mod:`nue.evaluate.record_keys`), or with ``drop_duplicates`` read
+    with the first record of each key (``on_dropped(file, n)`` is told how many were left out)."""
 
     hits, n = [], 0
     for path in paths:
+        unique = UniqueKeys(path, drop_duplicates)
         for i, line in enumerate(Path(path).read_text().splitlines(), 1):
             if not line.strip():
                 continue
@@ -227,9 +240,12 @@ def find_record(paths, key: str) -> EpisodeRecord:
                 k = d.get("extra", {}).get("key") or named
             except (ValueError, KeyError, TypeError, AttributeError):
                 raise DataError(path, f"line {i} is not an episode record") from None
+            if not unique.first(d, i):
+                continue
             n += 1
             if any(x == key or x.endswith("/" + key) for x in (k, named)):
                 hits.append((named, d))
+        unique.report(on_dropped)
     if len(hits) > 1:
         hits = [h for h in hits if h[0] == key] or hits
     if len(hits) != 1:
@@ -241,10 +257,64 @@ def find_record(paths, key: str) -> EpisodeRecord:
         raise DataError(paths[0] if len(paths) == 1 else "--records", f"{key}: {exc}") from None
 
 
-def run_replay(viewer: Viewer, src: ReplaySource) -> np.ndarray:
+def episode_files(record_files, scene: str, roots=(Path("episodes"),)) -> list[Path]:
+    """The files ``<root>/<set>/<scene>.json`` that may hold a record's episode, in the order :func:`find_episode`
+    tries them: the sets a record file's name ends in first (``records_val252.jsonl``, ``val252+swap.jsonl`` ->
+    ``val252``; ``records_val_plain.jsonl`` -> ``val_plain``), then ``val``, then the other sets by name. The sets
+    are the folders under ``roots`` (default ``episodes/``) and under the ``episodes/`` folder nearest above each
+    record file (``results/x.jsonl`` -> ``episodes/`` of its repository)."""
+
+    folders: list[Path] = []
+    for root in [*roots, *(_repository_episodes(f) for f in record_files)]:
+        if root is not None and root.is_dir() and all(root.resolve() != f.resolve() for f in folders):
+            folders.append(root)
+    sets = [d for root in folders for d in sorted(root.iterdir()) if (d / f"{scene}.json").is_file()]
+    stems = [Path(f).name.split(".")[0].split("+")[0] for f in record_files]
+
+    def named(d: Path) -> bool:
+        return any(re.search(rf"(^|_){re.escape(d.name)}$", stem) for stem in stems)
+
+    ordered = sorted(sets, key=lambda d: (not named(d), d.name != "val", d.name))
+    return [d / f"{scene}.json" for d in ordered]
+
+
+def _repository_episodes(record_file) -> Path | None:
+    """``<repo>/episodes`` of the nearest folder above ``record_file`` that has one, else None."""
+    for parent in Path(record_file).resolve().parents:
+        if (parent / "episodes").is_dir():
+            return parent / "episodes"
+    return None
+
+
+def find_episode(record: EpisodeRecord, record_files, scene: Scene, task, nav: NavGrid,
+                 roots=(Path("episodes"),)) -> Episode:
+    """The episode a record was made on, from the episode sets under ``roots`` (:func:`episode_files`): the first
+    file whose episode with the record's id has the record's digest (``extra['settings']['episode']``,
+    :meth:`nue.evaluate.eval_job.RunSettings.episode_digest`); a record without a digest (``nue expert``, older
+    records) takes the first file holding its id. :class:`EpisodeError` naming the files tried if none does."""
+
+    from nue.evaluate.eval_job import RunSettings
+
+    digest = (record.extra.get("settings") or {}).get("episode")
+    tried = episode_files(record_files, record.scene, roots)
+    for path in tried:
+        try:
+            episodes = load_episodes(path, scene, task, navgrid=nav)
+        except EpisodeError:
+            continue  # another task's or another house's file: not this record's
+        for e in episodes:
+            if e.episode_id == record.episode_id and (digest is None or RunSettings.episode_digest(e) == digest):
+                return e
+    what = f"episode {record.episode_id!r}" + (f" with digest {digest}" if digest else "")
+    where = ", ".join(str(p) for p in tried) or f"no {record.scene}.json under {', '.join(str(r) for r in roots)}"
+    raise EpisodeError(record.scene, f"no episode file holds the record's {what} (tried {where}); "
+                                     "give --episodes FILE or --episodes-dir DIR")
+
+
+def run_replay(viewer: Viewer, src: ReplaySource, on_dropped: OnDropped | None = None) -> np.ndarray:
     """Log the recorded episode at its recorded poses; returns those poses (T + 1, 3)."""
 
-    record = find_record(src.records, src.key)
+    record = find_record(src.records, src.key, src.drop_duplicates, on_dropped)
     traj = record.trajectory()
     if traj is None:
         raise DataError(src.key, "the record keeps no per-step trajectory (made before trajectories were stored)")
@@ -255,8 +325,11 @@ def run_replay(viewer: Viewer, src: ReplaySource) -> np.ndarray:
     scene = Scene.load(folder)
     task = _task(src.task)
     nav = NavGrid.from_scene(scene)
-    ep_file = src.episodes or str(Path(src.episodes_dir) / f"{record.scene}.json")
-    episode = pick_episode(load_episodes(ep_file, scene, task, navgrid=nav), record.episode_id, ep_file)
+    if src.episodes or src.episodes_dir:
+        ep_file = src.episodes or str(Path(src.episodes_dir) / f"{record.scene}.json")
+        episode = pick_episode(load_episodes(ep_file, scene, task, navgrid=nav), record.episode_id, ep_file)
+    else:
+        episode = find_episode(record, src.records, scene, task, nav)
     env = ImageNavEnv(scene, task, [episode], navgrid=nav)
     env.reset(seed=0, options={"episode": episode})
     log = viewer.logger(env)
@@ -286,23 +359,27 @@ def view(cfg: ViewConfig, source: LiveSource | ReplaySource, screenshot: str | N
         raise ConfigError("--screenshot", "needs chromium on PATH (apt-get install chromium)")
     name = source.key if isinstance(source, ReplaySource) else f"{Path(source.scene).name}/{source.episode}"
     viewer = Viewer(cfg, name)
-    if viewer.url:
-        echo(f"viewer: {viewer.url}")
-    if isinstance(source, ReplaySource):
-        poses = run_replay(viewer, source)
-        echo(f"replayed {source.key}: {len(poses) - 1} steps")
-    else:
-        rec = run_live(viewer, source)
-        echo(f"{rec.method}: {'success' if rec.success else 'failure'} in {rec.steps} steps, path {rec.path_length:.2f} m")
-    viewer.flush()
     try:
+        if viewer.url:
+            echo(f"viewer: {viewer.url}")
+        if viewer.public:
+            echo(f"viewer: listening on {cfg.host}, so the page and the run's data (ports {cfg.port} and "
+                 f"{cfg.grpc_port}) are reachable from the network by anyone who can reach this machine")
+        if isinstance(source, ReplaySource):
+            poses = run_replay(viewer, source, on_dropped=lambda path, k: echo(dropped_message(path, k)))
+            echo(f"replayed {source.key}: {len(poses) - 1} steps")
+        else:
+            rec = run_live(viewer, source)
+            echo(f"{rec.method}: {'success' if rec.success else 'failure'} in {rec.steps} steps, "
+                 f"path {rec.path_length:.2f} m")
+        viewer.flush()
         if screenshot:
             def drawn(px) -> bool:  # the goal marker or the trajectory below the header bar (whose warnings are orange)
                 body = px[px.shape[0] // 20:]
                 return has_colour(body, TRAJECTORY_COLOUR) or has_colour(body, GOAL_COLOUR)
 
             try:
-                seconds = screenshot_page(viewer.url, screenshot, timeout=screenshot_timeout, ready=drawn)
+                seconds = screenshot_page(viewer.local_url, screenshot, timeout=screenshot_timeout, ready=drawn)
             except TimeoutError as exc:
                 raise ConfigError("--screenshot", str(exc)) from None
             echo(f"screenshot: {screenshot} (page ready after {seconds:.1f} s)")
@@ -317,5 +394,5 @@ def view(cfg: ViewConfig, source: LiveSource | ReplaySource, screenshot: str | N
         pass
     finally:
         viewer.close()
-        if cfg.save:
-            echo(f"recording: {cfg.save} (open later with: rerun {cfg.save})")
+    if cfg.save:
+        echo(f"recording: {cfg.save} (open later with: rerun {cfg.save})")

@@ -4,10 +4,19 @@ Entities (world z up, metres; timeline ``step``):
 ``world/house`` the mesh (triangles wholly above the floor + ``cut_height`` left out, so the rooms show
 from above), ``world/goal`` the goal position and its success disc, ``world/robot`` the robot (a
 0.18 m disc, heading arrow), ``world/camera`` its pinhole with the RGB frame, ``world/trajectory`` the
-poses so far in :data:`TRAJECTORY_COLOUR`, ``world/seen`` the floor cells seen so far,
+poses so far in :data:`TRAJECTORY_COLOUR`, ``world/seen`` the floor cells seen so far (those on the house's floor
+map, :func:`floor_cells`),
 ``world/uncertainty`` the memory's rendered ray termination points coloured by log(1 + I_u).
 Images: ``frames/depth``, ``goal/photo``, ``memory/i_u``, ``memory/i_cog`` (a fixed random projection of
-the 64 channels to RGB), ``memory/rgb``. Scalars: ``metrics/seen_m2``, ``metrics/geodesic_m``.
+the 64 channels to RGB), ``memory/rgb``. Scalars: ``metrics/seen_m2`` (seen area by the evaluation's coverage
+measure, :func:`nue.sim.seen.seen_floor_cells`, as in a record's ``extra['coverage']``), ``metrics/geodesic_m``.
+
+Why the dots are masked: the coverage measure counts a cell as seen when a depth point within
+``CoverageConfig.floor_tolerance`` (5 cm) of the floor lands in it, which the bottom 5 cm of a wall do, and when its
+centre projects onto such a pixel at a depth within a tolerance that grows with the distance
+(``CoverageConfig.occlusion_rows``), which cells up to ~0.25 m behind a wall's foot seen from a few metres pass.
+Drawn as they are, these cells would show as dots on and just outside the walls; the viewer draws only the cells on
+the floor map and leaves the measure as it is.
 """
 
 from __future__ import annotations
@@ -18,7 +27,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from nue.scene.navgrid import ROBOT_RADIUS
+from nue.scene.navgrid import ROBOT_RADIUS, NavGrid
 from nue.sim.camera import pixel_directions, world_from_camera
 from nue.sim.renderer import mesh_draw_batches
 from nue.sim.seen import seen_floor_cells
@@ -45,6 +54,16 @@ class SceneViewConfig:
     """Radius of the trajectory line, metres."""
     cog_seed: int = 0
     """Seed of the fixed random projection of I_cog's channels to RGB (the same for every step)."""
+
+
+def floor_cells(grid: NavGrid) -> np.ndarray:
+    """(M, M) bool planning cells that hold at least one traversable pixel of the floor map (``grid.trav``, before
+    the erosion by the robot radius): where the viewer draws seen-floor dots (walls, furniture and the outside
+    of the house hold none)."""
+    m, f = grid.free.shape[0], grid.factor
+    padded = np.zeros((m * f, m * f), dtype=bool)
+    padded[: grid.n, : grid.n] = grid.trav
+    return padded.reshape(m, f, m, f).any(axis=(1, 3))
 
 
 def house_mesh(scene, floor_z: float, cut_height: float):
@@ -112,11 +131,13 @@ def blueprint(eye: tuple | None = None, target: tuple | None = None) -> rrb.Blue
 class EpisodeLogger:
     """Logs an episode to a :class:`rerun.RecordingStream`: :meth:`begin` once, then :meth:`step` per step."""
 
-    def __init__(self, rec: rr.RecordingStream, camera: CameraConfig, grid, floor_z: float,
+    def __init__(self, rec: rr.RecordingStream, camera: CameraConfig, grid: NavGrid, floor_z: float,
                  config: SceneViewConfig = SceneViewConfig()):
         self.rec, self.camera, self.grid, self.floor_z, self.config = rec, camera, grid, floor_z, config
         self.poses: list[np.ndarray] = []
         self.seen: np.ndarray | None = None
+        """(M, M) bool union of the cells seen so far (:func:`nue.sim.seen.seen_floor_cells`)."""
+        self.floor = floor_cells(grid)
         self.u_max = 0.0
         self._cog_proj: np.ndarray | None = None
         self._dirs = pixel_directions(camera)
@@ -177,7 +198,7 @@ class EpisodeLogger:
         cells = seen_floor_cells(depth, pose, self.camera, self.grid, self.floor_z)
         self.seen = cells if self.seen is None else (self.seen | cells)
         s = self.config.seen_stride
-        rc = np.argwhere(self.seen[::s, ::s]) * s
+        rc = np.argwhere((self.seen & self.floor)[::s, ::s]) * s
         xy = self.grid.cell_centre(rc).reshape(-1, 2)
         pts = np.concatenate([xy, np.full((len(xy), 1), self.floor_z + 0.01)], axis=1).astype(np.float32)
         self.rec.log("world/seen", rr.Points3D(pts, colors=[SEEN_COLOUR], radii=0.4 * s * float(self.grid.cell)))

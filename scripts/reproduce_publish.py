@@ -1,6 +1,6 @@
-"""Publish a finished `nue reproduce` run as the repository's shipped rows (run once, from the repository root):
+"""Publish a finished `nue reproduce` run as the repository's shipped rows (run once):
 
-    python results/reproduce/publish.py --run results/reproduce/run --previous v5
+    python scripts/reproduce_publish.py --run results/reproduce/run --previous v5
 
 1. ``checkpoints/<model>.pt`` (the previous recipe's) move to ``results/<previous>/checkpoints/<model>_<previous>.pt``
    and the run's ``runs/<model>/best.pt`` take their place;
@@ -13,6 +13,8 @@
    had all kept the key ``nue/...`` of the run that made them).
 
 Then regenerate RESULTS.md with the command the script prints (after updating RESULTS.meta.json by hand).
+``--root`` (default: the repository holding this script) and ``--run`` (default ``<root>/results/reproduce/run``)
+may be given relative to the current folder.
 ``--partial`` skips the check that the run finished (for a preview into a copy: ``--root /tmp/copy``).
 ``--table`` only prints the run's table for ``checkpoints/README.md`` (parameters, size, samples, closed-loop
 selection, and on the 84 episodes of ``episodes/val`` SR, SPL, collisions, P(forward | blocked), NUE minus it),
@@ -26,6 +28,9 @@ import json
 import shutil
 import sys
 from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+"""The repository this script belongs to."""
 
 SETS = {"records.jsonl": ("val252", "val"), "records_val252.jsonl": ("val252", None),
         "records_val_plain.jsonl": ("val_plain", None)}
@@ -143,12 +148,14 @@ def checkpoint_table(root: Path, run: Path, models: list[str]) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--run", type=Path, default=Path("results/reproduce/run"))
+    ap.add_argument("--run", type=Path, default=None, help="the run's folder (default ROOT/results/reproduce/run)")
     ap.add_argument("--previous", required=True, help="name of the recipe being replaced, e.g. v5")
-    ap.add_argument("--root", type=Path, default=Path("."), help="the repository (or a copy of it)")
+    ap.add_argument("--root", type=Path, default=ROOT, help="the repository (or a copy of it)")
     ap.add_argument("--partial", action="store_true", help="do not require the run's report stage")
     ap.add_argument("--table", action="store_true", help="only print the table for checkpoints/README.md")
     a = ap.parse_args()
+    if a.run is None:
+        a.run = a.root / "results" / "reproduce" / "run"
     recipe_file = a.run / "recipe.json"
     if not recipe_file.exists():
         fail(recipe_file, "missing: not a reproduce run")

@@ -1,10 +1,13 @@
 #!/bin/bash
 # Issue 11 item 3: the same demonstrations stored float16 and compact; one NUE trained on each at equal samples.
+# Run from anywhere: it works in the repository holding it (its .venv, data/, runs/c11/); about 2 hours on 2 cores.
+# Results: results/storage/ (README.md there), discussed in docs/history/benchmarks.md.
 set -e
-cd /work/main
-export OMP_NUM_THREADS=1 LP_NUM_THREADS=1 PYTHONHASHSEED=0 PYTHONPATH=/work/exp
+cd "$(dirname "$0")/.."
+export OMP_NUM_THREADS=1 LP_NUM_THREADS=1 PYTHONHASHSEED=0
 N=.venv/bin/nue
 S=runs/c11/stages.txt
+mkdir -p runs/c11
 st() { echo "$(date -u +%H:%M:%S) $*" >> $S; }
 st collect_f16 start
 $N collect --out data/demos_explore_f16 --episodes-per-bin 6 --heldout-per-bin 1 --noise 0.3 --expert explore \

@@ -1,18 +1,24 @@
 #!/usr/bin/env bash
 # Keep what a multi-session `nue reproduce` run has proved in git, and put it back on a fresh machine.
-#   bash results/reproduce/sync.sh save     runs/reproduce -> results/reproduce/run (recipe, stage markers, the
+#   bash scripts/reproduce_sync.sh save     RUN -> results/reproduce/run (recipe, stage markers, the
 #                                           best.pt and selection summary of every finished model, records)
-#   bash results/reproduce/sync.sh autosave [MINUTES]  save every MINUTES (default 20) and commit the records and
+#   bash scripts/reproduce_sync.sh autosave [MINUTES]  save every MINUTES (default 20) and commit the records and
 #                                           stage markers only (git commit -- <those paths>), until killed: a session
 #                                           that ends without warning keeps what its evaluation had recorded
-#   bash results/reproduce/sync.sh restore  results/reproduce/run -> runs/reproduce; without the demonstrations
+#   bash scripts/reproduce_sync.sh restore  results/reproduce/run -> RUN; without the demonstrations
 #                                           (8.7 GB, never committed) and with a model still to train, the collect
 #                                           marker is dropped, so that model finds its data again (the collection is
 #                                           seeded: the same manifest hash, which `nue train --resume` checks); once
 #                                           every model is trained the marker stays and evaluation goes on
+# RUN is the run's folder (`nue reproduce --out`; default runs/reproduce in the repository; a relative RUN is taken
+# from the current folder); results/reproduce/run is in the repository holding this script, wherever it is called from.
 # Then rerun the same `nue reproduce` command: finished stages are kept, the rest continues.
 set -euo pipefail
-run=${RUN:-runs/reproduce}
+self=$(realpath "$0")
+root=$(dirname "$(dirname "$self")")
+run=${RUN:-$root/runs/reproduce}
+case "$run" in /*) ;; *) run=$PWD/$run ;; esac
+cd "$root"
 store=results/reproduce/run
 case "${1:-}" in
   save)
@@ -43,7 +49,7 @@ case "${1:-}" in
     minutes=${2:-20}
     while true; do
       sleep $((60 * minutes))
-      RUN=$run bash "$0" save > /dev/null || continue
+      RUN=$run bash "$self" save > /dev/null || continue
       n=$(cat "$store"/records/*.jsonl 2>/dev/null | wc -l)
       git add "$store/records" "$store/stages" 2>/dev/null || continue
       git commit -q -m "reproduce run: evaluation records so far ($n runs recorded, sync.sh autosave)" -- "$store/records" "$store/stages" > /dev/null 2>&1 || true
