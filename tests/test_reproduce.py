@@ -374,6 +374,9 @@ def test_a_run_started_before_train_seeds_existed_resumes_and_refuses_seeds(tmp_
     check_recipe(tmp_path, quick)
     with pytest.raises(ConfigError, match="train_seeds"):
         check_recipe(tmp_path, get_recipe("quick"))
+    committed = EPISODES.parent / "results" / "reproduce" / "run"  # the v6 run, started before train_seeds existed
+    assert "train_seeds" not in json.loads((committed / "recipe.json").read_text())["recipe"]
+    check_recipe(committed, get_recipe("v6"))  # reads only: the file exists
 
 
 def test_a_resumed_seeded_run_estimates_the_seeds_left(tmp_path):
