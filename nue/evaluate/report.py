@@ -236,7 +236,9 @@ SEED_NOTES = (
     "Rows with several training seeds (n = episodes x seeds; each seed's run trained from the same demonstrations "
     "and evaluated on the same episodes with the same per-episode seeds, only the training seed differs): each cell "
     "is the mean over the seeds of each run's own SR / SPL / DTS, with the range over the seeds (min–max of the "
-    "per-seed values) in parentheses in place of the Wilson interval; the runs are listed under *Training seeds*."
+    "per-seed values) in parentheses in place of the Wilson interval; the runs are listed under *Training seeds*. "
+    "The coverage curves pool a method's seeds too; the closed-loop diagnostics and the hand-off tables list each "
+    "seed's run (`<label> @s<k>`)."
 )
 PAIRED_SEED_NOTES = (
     "With several training seeds on either side (pairs: episodes (method's x NUE's seeds)), a difference is the mean "
@@ -345,9 +347,14 @@ def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = Tr
 
 
 def coverage_curves(records: Sequence[EpisodeRecord]) -> dict[str, np.ndarray]:
-    """Mean seen-area-vs-step curve (m²) per method of the table (canonical names, in table order)."""
-    keys = order_methods({canonical_method(r.method) for r in records})
-    return cov.mean_coverage_curves(records, keys, method_of=lambda r: canonical_method(r.method))
+    """Mean seen-area-vs-step curve (m²) per method of the table (canonical names, in table order); a method's
+    training seeds are one method, as in Table I (the mean over all its seeds' episodes: with the same episodes per
+    seed, the mean of the seeds' mean curves)."""
+    def key(r: EpisodeRecord) -> str:
+        return canonical_method(split_seed(r.method)[0])
+
+    keys = order_methods({key(r) for r in records})
+    return cov.mean_coverage_curves(records, keys, method_of=key)
 
 
 def ordering_markdown(rows: Sequence[TableRow], paper: Mapping) -> str:
