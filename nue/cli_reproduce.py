@@ -15,7 +15,8 @@ from nue.outputs import check_output_dir, check_output_file
 def reproduce_cmd(
     out: Path = typer.Option(Path("runs/reproduce"), help="Run folder (recipe, demonstrations, runs, records, report)."),
     recipe: str = typer.Option("v6", help="Recipe preset (nue.recipe.RECIPES): v6 (the shipped checkpoints': v5 with "
-                                          "256k samples per model), v5 (50 min per model), v3 or quick."),
+                                          "256k samples per model), v7 (v6 with 3 training seeds for nue, abl_at_cbam "
+                                          "(no f_u), abl_none and fr), v5 (50 min per model), v3 or quick."),
     quick: bool = typer.Option(False, help="Tiny everything (the quick recipe): an end-to-end check in about a minute."),
     scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the houses are (generated if missing)."),
     episodes_root: Path = typer.Option(Path("episodes"), help="The committed episode sets (val, val252, val_plain, select)."),

@@ -6,16 +6,20 @@ Stages, in order (each one calls the library function of its command, and each i
 ==================  ==========================================================================================
 ``scenes``          the training houses and the houses of every evaluation set (kept when intact)
 ``collect``         ``nue collect`` into ``OUT/demos``
-``train/<model>``   ``nue train --resume`` into ``OUT/runs/<model>`` (closed-loop selection included); the
-                    models run side by side on ``--workers`` processes (one torch thread each) or Ray tasks
-``eval/<set>``      ``nue eval`` of every model and expert on the set into ``OUT/records/<set>.jsonl``
-``eval/<set>+swap`` the swapped-maps control on each set
+``train/<run>``     ``nue train --resume`` into ``OUT/runs/<run>`` (closed-loop selection included), one per training
+                    run: ``<model>``, and ``<model>@s<k>`` for a model's further training seeds (``Recipe.train_seeds``);
+                    the runs go side by side on ``--workers`` processes (one torch thread each) or Ray tasks
+                    (:mod:`nue.reproduce_train`)
+``eval/<set>``      ``nue eval`` of every training run and expert on the set into ``OUT/records/<set>.jsonl`` (a
+                    run's records are named after it, so the report pools a model's seeds into one row)
+``eval/<set>+swap`` the swapped-maps control on each set (every seed of the ``swap_maps`` models)
 ``report``          ``nue report`` per set (``OUT/report/<set>/``: tables and coverage.png; a set that extends
                     another also reports the smaller one from the same records) and ``OUT/RESULTS.md`` (with each
                     stage's wall-clock in the call that finished it, and an evaluation's summed episode time)
 ==================  ==========================================================================================
 
-The recipe is stored in ``OUT/recipe.json`` when a run starts; a rerun with another recipe is refused.
+The recipe is stored in ``OUT/recipe.json`` when a run starts; a rerun with another recipe is refused (a field added to
+``Recipe`` since the file was written counts at its default, which keeps the results of before).
 A finished stage leaves ``OUT/stages/<stage>.json`` (its wall-clock and summary) and is skipped by a
 rerun, so a killed run picks up at the stage it was in, and that stage continues from its own files.
 Test hook: ``NUE_FAIL_AFTER_STAGE=k`` stops the run after k stages finished in this call.
@@ -36,16 +40,14 @@ from nue.errors import ConfigError, DataError
 from nue.evaluate.report import load_records, write_report
 from nue.evaluate.results_md import render_results_md
 from nue.evaluate.runner import EvalConfig, episode_files, run_eval
-from nue.jobs import Job, fail_point, run_jobs
+from nue.jobs import fail_point
 from nue.output_lock import hold_output
-from nue.policy.config import get_model_config
 from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, format_duration, format_estimate
+from nue.reproduce_train import TrainJob, collect_config, run_training, train_config, train_model  # noqa: F401
 from nue.scene.generator import SPLITS, ensure_house
 from nue.sim.episode_sets import get_episode_set
-from nue.train.bc import TrainConfig, train
 from nue.train.checkpoint import git_commit
-from nue.train.collect import CollectConfig, collect
-from nue.train.dagger import DaggerConfig, run_dagger
+from nue.train.collect import collect
 from nue.viz.coverage import write_coverage_figure
 
 FORMAT = "nue-reproduce/1"
@@ -67,30 +69,15 @@ class RunFolders:
     def demos(self) -> Path:
         return self.out / "demos"
 
-    def run(self, model: str) -> Path:
-        return self.out / "runs" / model
+    def run(self, name: str) -> Path:
+        """The folder of a training run (``nue``, ``nue@s1``)."""
+        return self.out / "runs" / name
 
     def records(self, stage: str) -> Path:
         return self.out / "records" / f"{stage.removeprefix('eval/')}.jsonl"
 
     def marker(self, stage: str) -> Path:
         return self.out / "stages" / f"{stage.replace('/', '__')}.json"
-
-
-@dataclass(frozen=True)
-class TrainJob:
-    """One model's training, as it travels to a worker."""
-
-    train: TrainConfig
-    """Behaviour cloning (round 0 with DAgger)."""
-    collect: CollectConfig
-    """The demonstrations' collection (DAgger re-collects its episodes with the policy driving)."""
-    dagger: DaggerConfig | None
-    """DAgger schedule, or None for plain behaviour cloning."""
-    scenes_root: str
-    """Where the training houses are."""
-    progress: bool
-    """Show the training progress bar (single process only)."""
 
 
 @dataclass
@@ -113,6 +100,7 @@ def check_recipe(out: Path, recipe: Recipe) -> None:
     if path.is_file():
         try:
             stored = json.loads(path.read_text())["recipe"]
+            stored = {**_defaults(), **stored}  # fields added since it was written: at their defaults
         except (ValueError, KeyError, TypeError):
             raise DataError(path, "is not a reproduce recipe file") from None
         if stored != mine:
@@ -122,6 +110,11 @@ def check_recipe(out: Path, recipe: Recipe) -> None:
         return
     out.mkdir(parents=True, exist_ok=True)
     _write_json(path, {"format": FORMAT, "recipe": mine, "commit": git_commit(), "started": _now()})
+
+
+def _defaults() -> dict:
+    """Every ``Recipe`` field with a default (all but ``name``), at it, as ``to_dict`` writes it."""
+    return {k: v for k, v in Recipe(name="").to_dict().items() if k != "name"}
 
 
 def _write_json(path: Path, data) -> None:
@@ -142,40 +135,6 @@ def stage_done(folders: RunFolders, stage: str) -> dict | None:
 
 
 # --- stages ---------------------------------------------------------------------------------------------
-def collect_config(recipe: Recipe, device: str = "cpu") -> CollectConfig:
-    """The demonstrations of a recipe."""
-    return CollectConfig(task=recipe.task, memory=recipe.memory, houses=recipe.train_houses,
-                         episodes_per_bin=recipe.episodes_per_bin, heldout_per_bin=recipe.heldout_per_bin,
-                         seed=recipe.seed, device=device, expert=recipe.expert, noise=recipe.noise)
-
-
-def train_config(recipe: Recipe, model: str, folders: RunFolders, device: str = "cpu", compile: bool = False) -> TrainConfig:
-    """``nue train`` of one model under a recipe (budget, batch, precision, map dropout, selection); ``compile`` is
-    how it runs (``nue train --compile``), not part of the recipe."""
-    cfg = get_model_config(model)
-    return TrainConfig(
-        data=str(folders.demos), out=str(folders.run(model)), model=model, steps=recipe.train_steps(model),
-        batch_size=recipe.batch_for(model), seq_len=recipe.seq_len, lr=recipe.lr, warmup=recipe.warmup,
-        time_budget_s=60 * recipe.train_minutes, budget_clock=recipe.budget_clock, eval_every=recipe.step_plan(model).eval_every, seed=recipe.seed,
-        device=device, precision=recipe.precision, compile=compile, map_dropout=recipe.map_dropout if cfg.uses_memory_maps else 0.0,
-        select=recipe.select, select_episodes=str(folders.episodes_root / "select"),
-        select_candidates=recipe.select_candidates, select_scenes_root=str(folders.scenes_root))
-
-
-def train_model(job: Job) -> dict:
-    """Worker: train one model (resuming its run folder); its best checkpoint and steps. One torch thread, as every
-    job of ``run_jobs``."""
-    p: TrainJob = job.payload
-    t0 = time.perf_counter()
-    if p.dagger is None:
-        res = train(p.train, resume=True, progress=p.progress)
-        out = {"best": str(res.best), "steps": res.step, "train_seconds": res.elapsed_s}
-    else:
-        rounds = run_dagger(p.train, p.collect, p.dagger, p.scenes_root, workers=1, progress=p.progress)
-        out = {"best": str(rounds[-1]["best"]), "rounds": rounds}
-    return {**out, "seconds": time.perf_counter() - t0}
-
-
 def eval_episodes_dir(recipe: Recipe, folders: RunFolders, set_name: str) -> Path:
     """A set's episode folder: the committed one, or a copy of the recipe's houses of it in the run folder."""
     source = folders.episodes_root / set_name
@@ -210,21 +169,23 @@ def _lines(path: Path) -> int:
 
 def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, compiled: bool = False) -> list[StageEstimate]:
     """:func:`~nue.recipe.estimate` of what is left of a (resumed) run: stages finished earlier are marked done,
-    the training stage counts only the models not trained yet, and an evaluation stage is scaled by the share of
-    its (episode, method) runs its records file does not hold yet (the runs go episode by episode, every method
+    the training stage counts only the training runs not trained yet, and an evaluation stage is scaled by the share
+    of its (episode, method) runs its records file does not hold yet (the runs go episode by episode, every method
     of an episode together, so that share is also a share of the cost)."""
-    pending = [m for m in recipe.models if stage_done(folders, f"train/{m}") is None]
+    trained = [r.name for r in recipe.training_runs()]
+    pending = [r for r in trained if stage_done(folders, f"train/{r}") is None]
     counts = episode_counts(recipe)
     out = []
-    for s in estimate(recipe, workers, compiled=compiled, models=pending):
+    for s in estimate(recipe, workers, compiled=compiled, runs=pending):
         done = not pending if s.stage == "train" else stage_done(folders, s.stage) is not None
         if done:
             out.append(replace(s, seconds=0.0, done=True, detail="finished in an earlier call"))
-        elif s.stage == "train" and len(pending) < len(recipe.models):
-            out.append(replace(s, detail=f"{s.detail}; {len(recipe.models) - len(pending)} trained earlier"))
+        elif s.stage == "train" and len(pending) < len(trained):
+            out.append(replace(s, detail=f"{s.detail}; {len(trained) - len(pending)} trained earlier"))
         elif s.stage.startswith("eval/"):
             name = s.stage.removeprefix("eval/")
-            methods = len(recipe.swap_maps) if name.endswith("+swap") else len(recipe.models) + len(recipe.experts)
+            methods = (len(recipe.training_runs(recipe.swap_maps)) if name.endswith("+swap")
+                       else len(trained) + len(recipe.experts))
             runs = counts[name.removesuffix("+swap")] * methods
             have = min(_lines(folders.records(s.stage)), runs)
             out.append(replace(s, seconds=s.seconds * (1 - have / max(runs, 1)),
@@ -236,7 +197,7 @@ def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, co
 
 def plan_stages(recipe: Recipe) -> list[str]:
     """Stage names of a recipe, in order."""
-    stages = ["scenes", "collect", *[f"train/{m}" for m in recipe.models]]
+    stages = ["scenes", "collect", *[f"train/{r.name}" for r in recipe.training_runs()]]
     for name in recipe.eval_sets:
         stages.append(f"eval/{name}")
         if recipe.swap_maps:
@@ -283,8 +244,8 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
             continue
         if stage.startswith("train/"):
             if stage == pending_train[0]:
-                header(i, "train", f"{len(pending_train)} model(s): {', '.join(s[6:] for s in pending_train)}")
-                _run_training(recipe, folders, pending_train, workers, ray_address, device, progress, finish, compile)
+                header(i, "train", f"{len(pending_train)} training run(s): {', '.join(s[6:] for s in pending_train)}")
+                run_training(recipe, folders, pending_train, workers, ray_address, device, progress, finish, compile)
             continue
         t0 = time.perf_counter()
         if stage == "scenes":
@@ -314,30 +275,14 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
     return ReproduceResult(ran, kept, Path(results_md) if results_md else md)
 
 
-def _run_training(recipe, folders: RunFolders, stages: list[str], workers: int, ray_address, device, progress,
-                  finish, compile: bool = False) -> None:
-    """The models of ``stages`` side by side on ``workers`` processes (or Ray tasks), one torch thread each."""
-    dagger = None
-    if recipe.dagger_rounds:
-        dagger = DaggerConfig(rounds=recipe.dagger_rounds, beta0=recipe.dagger_beta, steps_per_round=recipe.dagger_steps,
-                              episodes_per_bin=recipe.dagger_episodes_per_bin, round_budget_s=60 * recipe.train_minutes)
-    single = workers <= 1 and not ray_address
-    jobs = [Job(stage, TrainJob(train_config(recipe, stage[6:], folders, device, compile), collect_config(recipe, device), dagger,
-                                str(folders.scenes_root), progress and single)) for stage in stages]
-
-    def on_result(job: Job, result: dict) -> None:
-        finish(job.key, result["seconds"], result)
-
-    run_jobs(jobs, train_model, on_result, workers=workers, ray_address=ray_address, desc="train", progress=progress)
-
-
 def _methods(recipe: Recipe, folders: RunFolders, models) -> list[str]:
+    """``<run>=<best checkpoint>`` of every training run (every seed) of ``models``."""
     out = []
-    for m in models:
-        marker = stage_done(folders, f"train/{m}")
+    for r in recipe.training_runs(models):
+        marker = stage_done(folders, f"train/{r.name}")
         if marker is None:
-            raise DataError(folders.marker(f"train/{m}"), f"model {m} has not been trained in this run")
-        out.append(f"{m}={marker['summary']['best']}")
+            raise DataError(folders.marker(f"train/{r.name}"), f"training run {r.name} has not finished in this run")
+        out.append(f"{r.name}={marker['summary']['best']}")
     return out
 
 

@@ -16,7 +16,7 @@ LAYERS = [
     {"nue.rollout", "nue.jobs"},
     {"nue.train", "nue.evaluate"},
     {"nue.viz"},
-    {"nue.demo", "nue.recipe", "nue.reproduce", "nue.cli", "nue.cli_args", "nue.cli_config", "nue.cli_evaluate",
+    {"nue.demo", "nue.recipe", "nue.recipe_estimate", "nue.reproduce", "nue.reproduce_train", "nue.cli", "nue.cli_args", "nue.cli_config", "nue.cli_evaluate",
      "nue.cli_learn", "nue.cli_reproduce", "nue"},
 ]
 

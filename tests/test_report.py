@@ -313,3 +313,115 @@ def test_an_episode_ending_off_the_planning_grid_is_left_out_of_dts_only():
     text = RM.render_results_md(recs, {"command": "x"})
     assert "Left out of DTS (1 episode(s); failures in SR and SPL): NUE (full) s0/9," in text
     assert "Left out of DTS" not in RM.render_results_md(hand_records(), {"command": "x"})
+
+
+# --- several training seeds per method ------------------------------------------------------------
+SEEDED = {  # method run -> success on episodes 0..3 (easy, easy, medium, hard); SPL 1 on success, DTS 1.0 on failure
+    "nue": (1, 1, 0, 0), "nue@s1": (1, 0, 0, 0),
+    "abl_at_cbam": (1, 1, 1, 0), "abl_at_cbam@s1": (1, 1, 0, 0), "abl_at_cbam@s2": (1, 1, 1, 1),
+    "fr": (0, 0, 1, 0),
+}
+
+
+def seeded_records():
+    bins = ("easy", "easy", "medium", "hard")
+    return [rec(i, bins[i], bool(ok), 2.0, 2.0, 0.5 if ok else 1.8, method=m)
+            for m, oks in SEEDED.items() for i, ok in enumerate(oks)]
+
+
+def test_a_method_with_several_seeds_is_one_row_of_seed_means_with_their_range():
+    """NUE's two seeds: totals 2 / 4 and 1 / 4 -> SR .375 (.25-.5), SPL the same, DTS .5 and .75 -> .625; easy 2 / 2
+    and 1 / 2 -> .75 (.5-1), DTS 0 and .5 -> .25. The no-f_u ablation's three: 3, 2, 4 of 4 -> .75 (.5-1). FR stays a
+    single run with its Wilson interval."""
+    rows = {r.method: r for r in R.build_table(seeded_records())}
+    assert list(rows) == ["fr", "abl_at_cbam", "nue"]
+    nue, abl, fr = rows["nue"], rows["abl_at_cbam"], rows["fr"]
+    assert (nue.seeds, nue.runs, abl.runs, fr.seeds, fr.runs) == (2, ("nue", "nue@s1"),
+                                                                  ("abl_at_cbam", "abl_at_cbam@s1", "abl_at_cbam@s2"), 1, ())
+    t = nue.cells["total"]
+    assert (t.n, t.successes, t.sr, t.spl, t.dts) == (8, 3, pytest.approx(0.375), pytest.approx(0.375), pytest.approx(0.625))
+    assert math.isnan(t.sr_lo) and math.isnan(t.sr_hi)  # no Wilson interval over the seeds' runs of one episode
+    assert (t.spread.seeds, t.spread.sr, t.spread.spl, t.spread.dts) == (2, (0.25, 0.5), (0.25, 0.5), (0.5, 0.75))
+    assert (t.spread.successes, t.spread.episodes) == ((2, 1), (4, 4))
+    e = nue.cells["easy"]
+    assert (e.sr, e.spread.sr, e.dts, e.spread.dts) == (0.75, (0.5, 1.0), pytest.approx(0.25), (0.0, 0.5))
+    assert (abl.cells["total"].sr, abl.cells["total"].spread.sr) == (pytest.approx(0.75), (0.5, 1.0))
+    assert [c.sr for c in abl.seed_totals] == [0.75, 0.5, 1.0]
+    assert fr.cells["total"].spread is None and fr.cells["total"].sr == 0.25 and fr.cells["total"].sr_hi > 0.25
+    md = R.format_markdown(list(rows.values()), R.paper_table())
+    assert ("| NUE (full) | 4 x 2 | 75.0 (50.0–100.0) | 0.750 (0.500–1.000) | 0.250 (0.000–0.500) | 0.0 (0.0–0.0) |"
+            in md)
+    assert md.count("| NUE (full) | 4 x 2 |") == 1 and "| FR | 4 | 0.0 [0.0, " in md
+    assert "| 37.5 (25.0–50.0) | 0.375 (0.250–0.500) | 0.625 (0.500–0.750) |" in md
+    counts = R.format_counts_markdown(list(rows.values()))
+    assert "| NUE (full) | 2, 1 / 2 | 0, 0 / 1 | 0, 0 / 1 | 2, 1 / 4 |" in counts and "| FR | 0 / 2 | 1 / 1 |" in counts
+    seeds = R.format_seeds_markdown(list(rows.values()))
+    assert "| NUE (full) | `nue@s1` | 4 | 25.0 [" in seeds and seeds.count("\n") == 2 + 5  # header + 5 seeds' runs
+    assert R.format_seeds_markdown([fr]) == "" and R.seed_notes([fr]) == ""
+    table = {r["method"]: r for r in csv.DictReader(io.StringIO(R.format_csv(list(rows.values()))))}
+    assert table["nue"]["seeds"] == "2" and table["fr"]["seeds"] == "1"
+    assert (table["nue"]["total_sr"], table["nue"]["total_sr_min"], table["nue"]["total_sr_max"]) == ("37.50", "25.00", "50.00")
+    assert table["nue"]["total_sr_lo"] == "" and table["fr"]["total_sr_min"] == ""
+    assert "sr_min" not in R.format_csv([fr])  # a table of single runs keeps its columns
+    assert r"37.5\,{\scriptsize(25.0--50.0)}" in R.format_latex(list(rows.values()))
+    assert R.method_label("nue@s1") == "NUE (full) @s1" and R.method_label("custom@s1") == "custom@s1"
+
+
+def test_paired_differences_pool_seeds_x_episodes():
+    """Per episode, each method's seed mean: no-f_u (1, 1, 2/3, 1/3), NUE (1, .5, 0, 0), FR (0, 0, 1, 0) -> SR
+    differences +.375 and -.125; every (method seed, NUE seed) pair of runs has its own: 3 x 2 and 1 x 2."""
+    diffs = {(d.method, d.metric): d for d in R.paired_differences(seeded_records())}
+    abl, fr = diffs["abl_at_cbam", "sr"], diffs["fr", "sr"]
+    assert (abl.n_pairs, abl.seeds, abl.reference_seeds, abl.mean) == (4, 3, 2, pytest.approx(0.375))
+    assert (fr.seeds, fr.reference_seeds, fr.mean) == (1, 2, pytest.approx(-0.125))
+    assert diffs["abl_at_cbam", "spl"].mean == pytest.approx(0.375)  # SPL is 1 on every success here
+    assert [(p.run, p.reference_run) for p in abl.seed_pairs] == [
+        (a, n) for a in ("abl_at_cbam", "abl_at_cbam@s1", "abl_at_cbam@s2") for n in ("nue", "nue@s1")]
+    assert [p.mean for p in abl.seed_pairs] == pytest.approx([0.25, 0.5, 0.0, 0.25, 0.5, 0.75])
+    assert abl.lo <= abl.mean <= abl.hi and len(fr.seed_pairs) == 2
+    md = R.paired_markdown(list(diffs.values()))
+    assert "| f_u=off AT=on CBAM=on | 4 (3 x 2 seeds) | +37.5 [" in md and "two-level bootstrap" in md
+
+
+def test_the_two_level_bootstrap_sees_the_seeds_disagree():
+    """A's two seeds: success everywhere / nowhere; the reference fails everywhere. The drawn A seeds' mean is 0, .5
+    or 1 (probabilities 1/4, 1/2, 1/4) whatever episodes are drawn: estimate .5, 95% interval [0, 1]. Averaging the
+    seeds first and resampling episodes only gives [.5, .5]. With one seed each it is the episode bootstrap."""
+    a, b = np.stack([np.ones(50), np.zeros(50)]), np.zeros((1, 50))
+    mean, lo, hi = R.seed_episode_bootstrap(a, b)
+    assert (mean[0], lo[0], hi[0]) == (0.5, 0.0, 1.0)
+    assert [v[0] for v in R.paired_bootstrap(a.mean(axis=0) - b[0])] == [0.5, 0.5, 0.5]
+    rng = np.random.default_rng(3)
+    x, y = rng.random((1, 40, 2)), rng.random((1, 40, 2))
+    for got, want in zip(R.seed_episode_bootstrap(x, y, n_boot=2000), R.paired_bootstrap(x[0] - y[0], n_boot=2000)):
+        assert got == pytest.approx(want)
+
+
+def test_a_verdict_that_depends_on_the_seed_is_named():
+    """f_u alone: seed 0 succeeds on all 30 episodes, seed 1 on none, like NUE (one run). Seed 0 vs NUE is resolved,
+    seed 1 vs NUE not; pooled over seeds x episodes the interval is [0, +100] (not resolved)."""
+    recs = [rec(i, "easy", False) for i in range(30)]
+    recs += [rec(i, "easy", True, method="abl_fu") for i in range(30)]
+    recs += [rec(i, "easy", False, method="abl_fu@s1") for i in range(30)]
+    sr, _ = R.paired_differences(recs)
+    assert (sr.mean, sr.lo, sr.hi, sr.resolved) == (0.5, 0.0, 1.0, False)
+    assert [(p.run, p.mean, p.lo, p.hi) for p in sr.seed_pairs] == [("abl_fu", 1.0, 1.0, 1.0), ("abl_fu@s1", 0.0, 0.0, 0.0)]
+    note = R.seed_dependence_markdown([sr])
+    assert note == ("- f_u=on AT=off CBAM=off vs NUE (full), SR: pooled not resolved (CI contains 0); of the 2 pairs of "
+                    "seeds' runs 1 resolved with f_u=on AT=off CBAM=off ahead, 1 not resolved\n")
+    md = R.paired_markdown([sr])
+    assert "| f_u=on AT=off CBAM=off | 30 (2 x 1 seeds) | +50.0 [+0.0, +100.0] | not resolved" in md
+    assert md.endswith(f"Verdicts that depend on the seed:\n\n{note}")
+    agree = R.paired_differences([r for r in recs if r.method != "abl_fu@s1"])
+    assert R.seed_dependence_markdown(agree) == "" and R.paired_markdown(agree) == R.format_paired_markdown(agree)
+
+
+def test_results_md_with_seeds_has_the_seed_notes_and_a_single_seed_one_has_none():
+    seeded = RM.render_results_md(seeded_records(), {"command": "nue reproduce --recipe v7"})
+    assert "| NUE (full) | 4 x 2 |" in seeded and "Training seeds (each run's totals):" in seeded
+    assert R.SEED_NOTES in seeded and R.PAIRED_SEED_NOTES in seeded
+    curves = R.coverage_curves([rec(0, "easy", True, method=m, coverage=c)
+                                for m, c in (("nue", [1.0, 3.0]), ("nue@s1", [2.0, 5.0]), ("fr", [1.0, 1.0]))])
+    assert list(curves) == ["fr", "nue"] and curves["nue"].tolist() == [1.5, 4.0]  # the seeds' runs averaged
+    plain = RM.render_results_md(hand_records(), {"command": "nue reproduce --recipe v6"})
+    assert "Training seeds" not in plain and "two-level" not in plain

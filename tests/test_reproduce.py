@@ -1,7 +1,8 @@
 """``nue reproduce``: the quick recipe end to end through the command line, killed after three stages (an
 injected failure) and rerun — no finished stage is redone, and the rest completes to RESULTS.md; a rerun
 with another recipe is refused; the recipes are the documented ones (v5 trains as the v5 checkpoints
-were trained); the estimate adds up."""
+were trained); the estimate adds up; a model's training seeds differ in the training seed only (the quick
+recipe trains NUE twice), v7 is v6 with seeds, and the estimate counts every seed."""
 
 from __future__ import annotations
 
@@ -14,12 +15,18 @@ from pathlib import Path
 
 import pytest
 
+import torch
+
 from nue.cli import main
 from nue.errors import ConfigError
 from nue.evaluate.report import load_records
-from nue.recipe import RECIPES, TABLE_I_MODELS, StepPlan, estimate, format_estimate, get_recipe
-from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, _run_training, plan_stages, reproduce, train_config
-from nue.train.checkpoint import load_policy
+from nue.evaluate.results_md import is_earlier_recipe
+from nue.evaluate.table import build_table, canonical_method, seed_run_name, split_seed
+from nue.policy.config import ABLATION_PRESETS, get_model_config
+from nue.recipe import RECIPES, TABLE_I_MODELS, StepPlan, estimate, format_estimate, get_recipe, training_seed
+from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, plan_stages, reproduce, train_config
+from nue.reproduce_train import run_training
+from nue.train.checkpoint import load_checkpoint, load_policy
 
 EPISODES = Path(__file__).resolve().parents[1] / "episodes"
 pytestmark = pytest.mark.timeout(600)  # the quick run takes ~35 s of CPU; a loaded machine stretches the wall clock
@@ -65,10 +72,11 @@ def test_quick_run_prints_its_estimate_and_reaches_results(run):
     assert all(RunFolders(out, Path(), Path()).marker(s).is_file() for s in stages)
     records = {name: load_records(out / "records" / f"{name}.jsonl") for name in ("val252", "val_plain", "val252+swap",
                                                                                 "val_plain+swap")}
-    methods = {*TABLE_I_MODELS, "expert"}
+    methods = {*TABLE_I_MODELS, "nue@s1", "expert"}  # the quick recipe trains NUE with 2 seeds
     assert {r.method for r in records["val252"]} == methods == {r.method for r in records["val_plain"]}
     assert {r.scene for r in records["val252"]} == {"val_00"} and {r.scene for r in records["val_plain"]} == {"val_plain_00"}
-    assert {r.method for r in records["val252+swap"]} == {"nue+swap"} == {r.method for r in records["val_plain+swap"]}
+    swapped = {"nue+swap", "nue@s1+swap"}
+    assert {r.method for r in records["val252+swap"]} == swapped == {r.method for r in records["val_plain+swap"]}
     assert {r.scene for r in records["val_plain+swap"]} == {"val_plain_00"}
     results = (out / "RESULTS.md").read_text()
     assert "## Table I: ours next to the paper" in results and "nue reproduce --recipe quick" in results
@@ -118,7 +126,7 @@ def test_a_recipe_with_dagger_rounds_trains_through_them(run, tmp_path):
     folders.out.mkdir()
     (folders.out / "demos").symlink_to(out / "demos", target_is_directory=True)
     done = {}
-    _run_training(recipe, folders, ["train/fr"], workers=1, ray_address=None, device="cpu", progress=False,
+    run_training(recipe, folders, ["train/fr"], workers=1, ray_address=None, device="cpu", progress=False,
                   finish=lambda stage, seconds, result: done.update({stage: result}))
     rounds = done["train/fr"]["rounds"]
     assert [r["round"] for r in rounds] == [0, 1] and rounds[1]["beta"] == 0.5
@@ -223,7 +231,7 @@ def test_a_resumed_run_estimates_only_what_is_left(tmp_path):
     folders.records("eval/val252").write_text("{}\n" * (runs // 4))  # a quarter of the runs recorded
     left = {s.stage: s for s in remaining_estimate(v6, folders, 2)}
     assert left["scenes"].done and left["collect"].done and left["scenes"].seconds == left["collect"].seconds == 0
-    two_models = {s.stage: s for s in estimate(v6, 2, models=v6.models[6:])}["train"].seconds
+    two_models = {s.stage: s for s in estimate(v6, 2, runs=v6.models[6:])}["train"].seconds
     assert not left["train"].done and left["train"].seconds == two_models < fresh["train"].seconds
     assert "6 trained earlier" in left["train"].detail
     assert left["eval/val252"].seconds == pytest.approx(0.75 * fresh["eval/val252"].seconds)
@@ -246,3 +254,144 @@ def test_a_compiled_run_estimates_shorter_training_by_the_measured_speedup():
     saved = sum(samples / dict(cost.samples_per_s)[k] * (1 - 1 / dict(cost.compiled_speedup)[k])
                 for k in ["nue"] * 6 + ["fr", "nav_a3c"])
     assert abs((eager["train"].seconds - compiled["train"].seconds) - saved) < 1.0
+
+
+def test_two_seeds_of_a_quick_run_differ_in_the_training_seed_only(run):
+    """The quick recipe trains NUE with 2 seeds (runs ``nue`` and ``nue@s1``): the same demonstrations (one folder, one
+    manifest hash) and every training setting the same but the seed and the run folder; different weights; their
+    records pair episode by episode (the same episodes with the same per-episode seeds and run settings), in the
+    swapped-maps control too; the report pools them into one row of 2 seeds."""
+    out = run[0]
+    quick = get_recipe("quick")
+    runs = {r.name: r for r in quick.training_runs()}
+    assert (runs["nue"].seed, runs["nue@s1"].seed) == (0, training_seed(0, 1)) and training_seed(0, 1) != 0
+    headers = {name: load_policy(out / "runs" / name / "best.pt")[1] for name in ("nue", "nue@s1")}
+    a, b = (dict(headers[n].train_config) for n in ("nue", "nue@s1"))
+    assert (a.pop("seed"), b.pop("seed")) == (0, training_seed(0, 1))
+    assert (a.pop("out"), b.pop("out")) == (str(out / "runs" / "nue"), str(out / "runs" / "nue@s1"))
+    assert a == b and a["data"] == str(out / "demos")
+    assert headers["nue"].manifest_hash == headers["nue@s1"].manifest_hash and headers["nue"].model == headers["nue@s1"].model
+    w0, w1 = (load_checkpoint(out / "runs" / n / "best.pt")["model_state"] for n in ("nue", "nue@s1"))
+    assert w0.keys() == w1.keys() and any(not torch.equal(w0[k], w1[k]) for k in w0)
+    markers = {n: json.loads((out / "stages" / f"train__{n}.json").read_text())["summary"] for n in ("nue", "nue@s1")}
+    assert [(m["model"], m["seed"]) for m in markers.values()] == [("nue", 0), ("nue", training_seed(0, 1))]
+    for stage, pair in (("val252", ("nue", "nue@s1")), ("val_plain", ("nue", "nue@s1")),
+                        ("val252+swap", ("nue+swap", "nue@s1+swap"))):
+        recs = load_records(out / "records" / f"{stage}.jsonl")
+        sides = []
+        for method in pair:
+            mine = sorted((r for r in recs if r.method == method), key=lambda r: (r.scene, r.episode_id))
+            sides.append([(r.scene, r.episode_id, r.extra["seed"], {k: v for k, v in r.extra["settings"].items()
+                                                                    if k != "agent"}) for r in mine])
+        assert sides[0] == sides[1] and len(sides[0]) == 1, stage
+    (nue,) = [row for row in build_table(load_records(out / "records" / "val252.jsonl")) if row.method == "nue"]
+    assert nue.runs == ("nue", "nue@s1") and nue.seeds == 2 and nue.cells["total"].spread.episodes == (1, 1)
+    assert "| NUE (full) | 1 x 2 |" in (out / "RESULTS.md").read_text()
+
+
+def test_a_seed_index_gives_a_run_name_and_a_training_seed():
+    """Seed 0 is the model itself with the recipe's seed (a single-seed recipe trains as before); seed k >= 1 is
+    ``<model>@s<k>`` with the first word of SeedSequence([seed, k]) modulo 2**31 (pinned: stable across processes)."""
+    assert (training_seed(0, 0), training_seed(7, 0)) == (0, 7)
+    assert (training_seed(0, 1), training_seed(0, 2)) == (1817441348, 993632895)
+    assert len({training_seed(s, k) for s in range(3) for k in range(1, 4)}) == 9
+    assert all(0 <= training_seed(s, k) < 2**31 for s in range(3) for k in range(4))
+    assert (seed_run_name("nue", 0), seed_run_name("abl_fu", 2)) == ("nue", "abl_fu@s2")
+    assert split_seed("abl_fu@s2") == ("abl_fu", 2) and split_seed("nue@s1+swap") == ("nue+swap", 1)
+    assert split_seed("nue") == ("nue", 0) and split_seed("nue_v5a+swap") == ("nue_v5a+swap", 0)
+    assert split_seed("nue@s0") == ("nue@s0", 0)  # seed 0 is never suffixed
+    assert canonical_method("nue@s1") == "nue@s1" and canonical_method(split_seed("NUE (full)@s1")[0]) == "nue"
+    assert not is_earlier_recipe("nue@s1") and not is_earlier_recipe("abl_fu@s2+swap")
+    assert is_earlier_recipe("nue_v5a") and is_earlier_recipe("nue_v6@s1+swap")
+
+
+def test_v7_is_v6_with_three_seeds_for_four_models_and_v6_is_unchanged():
+    v6, v7 = get_recipe("v6"), get_recipe("v7")
+    assert v6.train_seeds == () and v6.training_runs() == v6.training_runs(v6.models)
+    assert [r.name for r in v6.training_runs()] == list(v6.models) and all(r.seed == 0 for r in v6.training_runs())
+    assert v7 == v6.replace(name="v7", train_seeds=(("nue", 3), ("abl_at_cbam", 3), ("abl_none", 3), ("fr", 3)))
+    no_fu, all_off, full = (get_model_config(m) for m in ("abl_at_cbam", "abl_none", "nue"))  # the ablations' switches
+    assert {"abl_at_cbam", "abl_none"} <= set(ABLATION_PRESETS) and full.use_uncertainty and full.use_aux and full.use_cbam
+    assert (no_fu.use_uncertainty, no_fu.use_aux, no_fu.use_cbam) == (False, True, True)  # NUE without f_u
+    assert (all_off.use_uncertainty, all_off.use_aux, all_off.use_cbam) == (False, False, False)
+    names = [r.name for r in v7.training_runs()]
+    assert names[:8] == list(v6.models)  # every model's seed 0 first: v6's runs, with v6's seeds
+    assert names[8:] == ["nue@s1", "abl_none@s1", "abl_at_cbam@s1", "fr@s1", "nue@s2", "abl_none@s2", "abl_at_cbam@s2",
+                         "fr@s2"]
+    assert [r.seed for r in v7.training_runs()] == [0] * 8 + [training_seed(0, 1)] * 4 + [training_seed(0, 2)] * 4
+    assert plan_stages(v7)[2:18] == [f"train/{n}" for n in names] and plan_stages(v7)[18] == "eval/val252"
+    assert (v7.seeds_of("nue"), v7.seeds_of("nav_a3c")) == (3, 1)
+    folders = RunFolders(Path("/run"), Path("data/scenes"), Path("episodes"))
+    seed0, seed2 = (dataclasses.asdict(train_config(v7, n, folders)) for n in ("abl_at_cbam", "abl_at_cbam@s2"))
+    assert seed0 == dataclasses.asdict(train_config(v6, "abl_at_cbam", folders))  # seed 0 trains as in v6
+    assert (seed2.pop("seed"), seed2.pop("out")) == (training_seed(0, 2), "/run/runs/abl_at_cbam@s2")
+    assert {k: v for k, v in seed0.items() if k not in ("seed", "out")} == seed2
+    with pytest.raises(ConfigError):
+        train_config(v7, "nav_a3c@s1", folders)  # one seed only
+    with pytest.raises(ConfigError):
+        v6.replace(train_seeds=(("nue", 0),))
+    with pytest.raises(ConfigError):
+        v6.replace(train_seeds=(("nue", 2), ("nue", 3)))
+    with pytest.raises(ConfigError):
+        v6.replace(train_seeds=(("no_such_model", 2),))
+    assert v7.replace(models=("fr",), swap_maps=()).training_runs()[-1].name == "fr@s2"  # untrained models: ignored
+    assert "training seeds: nue x3, abl_at_cbam x3, abl_none x3, fr x3 (16 runs; the others once)" in v7.summary()
+    assert "training seeds" not in v6.summary()
+
+
+def test_the_estimate_counts_every_seed_s_training_selection_and_evaluation():
+    """v7 - v6, one worker: 8 more training jobs (3 NUE-family + FR, twice), each with its closed-loop selection;
+    8 more methods per evaluation set; 3 swapped-maps runs of NUE instead of 1."""
+    from nue.recipe import CostModel
+
+    v6, v7, c = get_recipe("v6"), get_recipe("v7"), CostModel()
+    six, seven = ({s.stage: s for s in estimate(r, 1)} for r in (v6, v7))
+    job_nue = 10.0 + 256_000 / 98.0 + 2 * 21 * 11.5  # overhead + samples / rate + 2 candidates x 21 episodes
+    job_fr = 10.0 + 256_000 / 200.0 + 2 * 21 * 1.7
+    assert seven["train"].seconds - six["train"].seconds == pytest.approx(2 * (3 * job_nue + job_fr))
+    assert "16 runs (models x seeds)" in seven["train"].detail and "8 models" in six["train"].detail
+    for name in ("val252", "val_plain"):
+        extra = 252 * 2 * (3 * 13.3 + 3.4) + 8 * 5.0
+        assert seven[f"eval/{name}"].seconds - six[f"eval/{name}"].seconds == pytest.approx(extra)
+        assert "18 methods" in seven[f"eval/{name}"].detail
+        assert seven[f"eval/{name}+swap"].seconds == pytest.approx(3 * six[f"eval/{name}+swap"].seconds)
+    assert (seven["collect"], seven["scenes"]) == (six["collect"], six["scenes"])
+    assert c.train_overhead_s == 10.0 and dict(c.samples_per_s)["nue"] == 98.0  # the numbers used above
+    code, text = _nue("reproduce", "--recipe", "v7", "--estimate", "--workers", 2, "--out", "/nonexistent/run")
+    assert code == 0 and "16 runs (models x seeds)" in text and "18 methods" in text
+
+
+def test_a_run_started_before_train_seeds_existed_resumes_and_refuses_seeds(tmp_path):
+    """A recipe.json written before a field was added (here ``train_seeds``) counts it at its default: the same
+    recipe resumes, one with seeds is refused."""
+    from nue.reproduce import check_recipe
+
+    quick = get_recipe("quick").replace(train_seeds=())
+    check_recipe(tmp_path, quick)
+    stored = json.loads((tmp_path / "recipe.json").read_text())
+    del stored["recipe"]["train_seeds"]
+    (tmp_path / "recipe.json").write_text(json.dumps(stored))
+    check_recipe(tmp_path, quick)
+    with pytest.raises(ConfigError, match="train_seeds"):
+        check_recipe(tmp_path, get_recipe("quick"))
+    committed = EPISODES.parent / "results" / "reproduce" / "run"  # the v6 run, started before train_seeds existed
+    assert "train_seeds" not in json.loads((committed / "recipe.json").read_text())["recipe"]
+    check_recipe(committed, get_recipe("v6"))  # reads only: the file exists
+
+
+def test_a_resumed_seeded_run_estimates_the_seeds_left(tmp_path):
+    """v7 with every model's seed 0 trained: the 8 seed runs are left, and an evaluation stage counts 18 methods."""
+    from nue.reproduce import remaining_estimate
+
+    v7 = get_recipe("v7")
+    folders = RunFolders(tmp_path, Path(), Path())
+    folders.marker("collect").parent.mkdir(parents=True)
+    for stage in ["scenes", "collect", *[f"train/{m}" for m in v7.models]]:
+        folders.marker(stage).write_text(json.dumps({"stage": stage, "seconds": 1.0}))
+    folders.records("eval/val252").parent.mkdir()
+    folders.records("eval/val252").write_text("{}\n" * (252 * 18 // 2))
+    left = {s.stage: s for s in remaining_estimate(v7, folders, 2)}
+    seeds = [r.name for r in v7.training_runs() if r.seed_index]
+    assert left["train"].seconds == {s.stage: s for s in estimate(v7, 2, runs=seeds)}["train"].seconds > 0
+    assert "8 runs (models x seeds)" in left["train"].detail and "8 trained earlier" in left["train"].detail
+    assert "2,268 of 4,536 runs recorded" in left["eval/val252"].detail

@@ -3,10 +3,10 @@ paired-bootstrap differences to NUE, the coverage curves, and the text of RESULT
 
 * Table data (rows, cells, SR with its 95% Wilson score interval, the paper's numbers):
   :mod:`nue.evaluate.table`; the statistics: :mod:`nue.evaluate.stats`.
-* Paired differences: per method, ``d_i = x_method,i - x_NUE,i`` over the episodes both ran
-  (matched on (scene, episode_id); repeated runs of a key are averaged), their mean and the 95%
-  percentile interval of 10,000 paired-bootstrap resamples (``numpy.random.default_rng(0)`` per
-  comparison). The episode count resolves the ordering when the interval excludes 0.
+* Paired differences to NUE (over episodes; over training seeds x episodes for a method run with several seeds):
+  :mod:`nue.evaluate.paired`. The episode count resolves the ordering when the interval excludes 0.
+* Several training seeds of a method (runs ``<model>@s<k>``): one row of seed means with the range over the seeds
+  (:func:`nue.evaluate.table.make_seed_cell`), the seeds' runs in a table of their own (:func:`format_seeds_markdown`).
 * ``write_report(records, out_dir)`` -> table.md, table.csv, table.tex (the coverage figure is
   :func:`nue.viz.coverage.write_coverage_figure`'s). The text of RESULTS.md, built from these pieces, is
   :mod:`nue.evaluate.results_md`'s.
@@ -18,7 +18,6 @@ import csv
 import io
 import math
 import re
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -27,84 +26,17 @@ from scipy.stats import kendalltau
 
 from nue.evaluate import coverage as cov
 from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, record_diagnostics
-from nue.evaluate.metrics import dts, spl, success, unreachable_end
+from nue.evaluate.metrics import unreachable_end
+from nue.evaluate.paired import (  # noqa: F401  (re-exported)
+    METRIC_FNS, PairedDiff, SeedPairDiff, paired_differences, seed_dependence_markdown,
+)
 from nue.evaluate.record_keys import OnDropped
-from nue.evaluate.stats import paired_bootstrap, wilson_interval  # noqa: F401  (re-exported)
+from nue.evaluate.stats import paired_bootstrap, seed_episode_bootstrap, wilson_interval  # noqa: F401  (re-exported)
 from nue.evaluate.table import (  # noqa: F401  (re-exported)
     DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, method_label, order_methods,
-    paper_table,
+    paper_table, seed_run_name, split_seed,
 )
 from nue.sim.record import EpisodeRecord
-
-METRIC_FNS = {"sr": success, "spl": spl, "dts": dts}
-
-
-# --- paired differences -------------------------------------------------------------------------
-@dataclass(frozen=True)
-class PairedDiff:
-    """Mean paired difference (method - reference) of one metric, with its bootstrap interval."""
-
-    method: str
-    """Method key."""
-    reference: str
-    """Reference method key (``nue``)."""
-    metric: str
-    """``sr`` (fraction), ``spl`` or ``dts``."""
-    n_pairs: int
-    """Episodes both methods ran."""
-    mean: float
-    """Mean of ``x_method - x_reference`` over the pairs."""
-    lo: float
-    """2.5th percentile of the bootstrap means."""
-    hi: float
-    """97.5th percentile of the bootstrap means."""
-
-    @property
-    def resolved(self) -> bool:
-        """The interval excludes 0: the episodes settle which method is ahead."""
-        return self.n_pairs > 0 and (self.lo > 0 or self.hi < 0)
-
-    def verdict(self, higher_is_better: bool = True) -> str:
-        if self.n_pairs == 0:
-            return "no common episodes"
-        if not self.resolved:
-            return "not resolved (CI contains 0)"
-        ahead = (self.lo > 0) == higher_is_better
-        return f"resolved: {method_label(self.method) if ahead else method_label(self.reference)} ahead"
-
-
-def _per_key(records: Sequence[EpisodeRecord], metrics: Sequence[str]) -> dict[tuple[str, str], np.ndarray]:
-    acc: dict[tuple[str, str], list] = {}
-    for r in records:
-        acc.setdefault((r.scene, r.episode_id), []).append([METRIC_FNS[m](r) for m in metrics])
-    return {k: np.mean(v, axis=0) for k, v in acc.items()}
-
-
-def paired_differences(records: Sequence[EpisodeRecord], reference: str = "nue", metrics: Sequence[str] = ("sr", "spl"),
-                       n_boot: int = 10_000, seed: int = 0) -> list[PairedDiff]:
-    """Paired differences to ``reference`` for every other method, per metric (see module doc).
-
-    Empty when the reference has no records; a method sharing no episode gets ``n_pairs = 0``, NaN.
-    """
-    groups = by_method(records)
-    ref = canonical_method(reference)
-    if ref not in groups:
-        return []
-    ref_vals = _per_key(groups[ref], metrics)
-    out = []
-    for key, recs in groups.items():
-        if key == ref:
-            continue
-        vals = _per_key(recs, metrics)
-        common = sorted(set(vals) & set(ref_vals))
-        if common:
-            d = np.array([vals[c] - ref_vals[c] for c in common])
-            mean, lo, hi = paired_bootstrap(d, n_boot, seed)
-        else:
-            mean = lo = hi = np.full(len(metrics), math.nan)
-        out += [PairedDiff(key, ref, m, len(common), float(mean[j]), float(lo[j]), float(hi[j]))
-                for j, m in enumerate(metrics)]
-    return out
 
 
 # --- formatting ---------------------------------------------------------------------------------
@@ -116,7 +48,30 @@ def _sr_text(c: Cell, ci: bool = True) -> str:
     if c.n == 0:
         return "–"
     s = _f(100 * c.sr, ".1f")
+    if c.spread is not None:  # several seeds: the range over the seeds, not a Wilson interval
+        return f"{s} ({_range_text(c.spread.sr, '.1f', 100)})" if ci else s
     return f"{s} [{100 * c.sr_lo:.1f}, {100 * c.sr_hi:.1f}]" if ci else s
+
+
+def _range_text(lo_hi: tuple[float, float], spec: str, scale: float = 1.0) -> str:
+    return f"{_f(scale * lo_hi[0], spec)}–{_f(scale * lo_hi[1], spec)}"
+
+
+def _cell_texts(c: Cell) -> tuple[str, str, str]:
+    """SR, SPL and DTS of a cell as Table I shows them (several seeds: each with its range over the seeds)."""
+    if c.spread is None or c.n == 0:
+        return _sr_text(c), _f(c.spl, ".3f"), _f(c.dts, ".3f")
+    return (_sr_text(c), f"{_f(c.spl, '.3f')} ({_range_text(c.spread.spl, '.3f')})",
+            f"{_f(c.dts, '.3f')} ({_range_text(c.spread.dts, '.3f')})")
+
+
+def _n_text(row: TableRow) -> str:
+    """Episodes of a row: ``n``, or ``n x seeds`` (the episodes of one seed's run) when each seed ran as many."""
+    c = row.cells["total"]
+    if c.spread is None:
+        return str(c.n)
+    per_seed = set(c.spread.episodes)
+    return f"{per_seed.pop()} x {c.spread.seeds}" if len(per_seed) == 1 else f"{c.n} ({c.spread.seeds} seeds)"
 
 
 def _rows_with_paper(rows: Sequence[TableRow], paper) -> list[tuple[str, TableRow, Mapping | None]]:
@@ -144,40 +99,68 @@ def format_markdown(rows: Sequence[TableRow], paper: Mapping | None = None) -> s
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for source, row, p in _rows_with_paper(rows, paper):
         if p is None:
-            cells = [c for g in groups for c in (_sr_text(row.cells[g]), _f(row.cells[g].spl, ".3f"), _f(row.cells[g].dts, ".3f"))]
-            lines.append(f"| {row.label} | {row.cells['total'].n} | " + " | ".join(cells) + " |")
+            cells = [c for g in groups for c in _cell_texts(row.cells[g])]
+            lines.append(f"| {row.label} | {_n_text(row)} | " + " | ".join(cells) + " |")
         else:
             cells = [c for g in groups for c in _paper_cells(p, g)]
             lines.append("| *paper* | | " + " | ".join(f"*{c}*" for c in cells) + " |")
     return "\n".join(lines) + "\n"
 
 
+def _count_text(c: Cell) -> str:
+    """``k / n``; several seeds: each seed's ``k`` over the common ``n`` (``40, 42, 45 / 84``), else ``k / n`` each."""
+    if c.spread is None or c.n == 0:
+        return f"{c.successes} / {c.n}"
+    if len(set(c.spread.episodes)) == 1:
+        return f"{', '.join(map(str, c.spread.successes))} / {c.spread.episodes[0]}"
+    return ", ".join(f"{k} / {n}" for k, n in zip(c.spread.successes, c.spread.episodes))
+
+
 def format_counts_markdown(rows: Sequence[TableRow]) -> str:
-    """Episodes (and successes) per cell: ``k / n``."""
+    """Episodes (and successes) per cell: ``k / n`` (several seeds: per seed, :func:`_count_text`)."""
     groups = _groups(rows)
     lines = ["| method | " + " | ".join(g.capitalize() for g in groups) + " |", "|" + "---|" * (len(groups) + 1)]
-    lines += [f"| {r.label} | " + " | ".join(f"{r.cells[g].successes} / {r.cells[g].n}" for g in groups) + " |" for r in rows]
+    lines += [f"| {r.label} | " + " | ".join(_count_text(r.cells[g]) for g in groups) + " |" for r in rows]
     return "\n".join(lines) + "\n"
+
+
+def format_seeds_markdown(rows: Sequence[TableRow]) -> str:
+    """Each training seed's run of the rows with several seeds: its totals (SR % [95% Wilson CI], SPL, DTS); '' when
+    every row is a single run."""
+    lines = ["| method | run | n | SR % | SPL | DTS |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        for run, c in zip(r.runs, r.seed_totals):
+            lines.append(f"| {r.label} | `{run}` | {c.n} | {_sr_text(c)} | {_f(c.spl, '.3f')} | {_f(c.dts, '.3f')} |")
+    return "\n".join(lines) + "\n" if len(lines) > 2 else ""
 
 
 def format_csv(rows: Sequence[TableRow], paper: Mapping | None = None) -> str:
     """Wide CSV in the layout of ``paper_table1.csv`` (SR in %), plus n, k and the SR interval per group, and ``source``."""
     groups = _groups(rows)
-    cols = ["method", "label", "source"] + [f"{g}_{c}" for g in groups for c in ("n", "k", "sr", "sr_lo", "sr_hi", "spl", "dts")]
+    seeded = any(r.seeds > 1 for r in rows)  # then a seeds column and the range over seeds of each value
+    extra = ("sr_min", "sr_max", "spl_min", "spl_max", "dts_min", "dts_max") if seeded else ()
+    cols = ["method", "label", "source", *(["seeds"] if seeded else [])] + [
+        f"{g}_{c}" for g in groups for c in ("n", "k", "sr", "sr_lo", "sr_hi", "spl", "dts", *extra)]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(cols)
     for source, row, p in _rows_with_paper(rows, paper):
-        vals: list = [row.method, row.label, source]
+        vals: list = [row.method, row.label, source, *([row.seeds if p is None else ""] if seeded else [])]
         for g in groups:
             c = row.cells[g]
             if p is not None:
                 sr, s, d = _paper_cells(p, g, "")
-                vals += ["", "", sr, "", "", s, d]
+                vals += ["", "", sr, "", "", s, d, *[""] * len(extra)]
             elif c.n == 0:
-                vals += [0, 0, "", "", "", "", ""]
+                vals += [0, 0, "", "", "", "", "", *[""] * len(extra)]
             else:
-                vals += [c.n, c.successes, *(f"{100 * v:.2f}" for v in (c.sr, c.sr_lo, c.sr_hi)), f"{c.spl:.4f}", f"{c.dts:.4f}"]
+                vals += [c.n, c.successes, *(_f(100 * v, ".2f").replace("–", "") for v in (c.sr, c.sr_lo, c.sr_hi)),
+                         f"{c.spl:.4f}", f"{c.dts:.4f}"]
+                if seeded and c.spread is not None:
+                    sp = c.spread
+                    vals += [f"{100 * sp.sr[0]:.2f}", f"{100 * sp.sr[1]:.2f}", *(f"{v:.4f}" for v in (*sp.spl, *sp.dts))]
+                elif seeded:
+                    vals += [""] * len(extra)
         w.writerow(vals)
     return buf.getvalue()
 
@@ -198,6 +181,12 @@ def format_latex(rows: Sequence[TableRow], paper: Mapping | None = None) -> str:
             cells = []
             for g in groups:
                 c = row.cells[g]
+                if c.n and c.spread is not None:  # several seeds: the seed mean and the range over the seeds
+                    sp = c.spread
+                    cells += [rf"{100 * c.sr:.1f}\,{{\scriptsize({_range_text(sp.sr, '.1f', 100)})}}".replace("–", "--"),
+                              *(rf"{v:.3f}\,{{\scriptsize({_range_text(r, '.3f')})}}".replace("–", "--")
+                                for v, r in ((c.spl, sp.spl), (c.dts, sp.dts)))]
+                    continue
                 sr = "--" if c.n == 0 else rf"{100 * c.sr:.1f}\,{{\scriptsize[{100 * c.sr_lo:.1f}, {100 * c.sr_hi:.1f}]}}"
                 cells += [sr, _f(c.spl, ".3f").replace("–", "--"), _f(c.dts, ".3f").replace("–", "--")]
             out.append(_tex(row.label) + " & " + " & ".join(cells) + r" \\")
@@ -226,7 +215,9 @@ def format_paired_markdown(diffs: Sequence[PairedDiff]) -> str:
             fmt = ".1f" if m == "sr" else ".3f"
             cells += [f"{_f(s * d.mean, '+' + fmt)} [{_f(s * d.lo, '+' + fmt)}, {_f(s * d.hi, '+' + fmt)}]",
                       d.verdict(higher_is_better=m != "dts")]
-        lines.append(f"| {method_label(key)} | {next(iter(by[key].values())).n_pairs} | " + " | ".join(cells) + " |")
+        first = next(iter(by[key].values()))
+        seeds = f" ({first.seeds} x {first.reference_seeds} seeds)" if first.seed_pairs else ""
+        lines.append(f"| {method_label(key)} | {first.n_pairs}{seeds} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -239,6 +230,43 @@ def load_records(*paths, drop_duplicates: bool = False, on_dropped: OnDropped | 
     from nue.evaluate.handoff_job import load_records_with_handoff
 
     return load_records_with_handoff(*paths, drop_duplicates=drop_duplicates, on_dropped=on_dropped)
+
+
+SEED_NOTES = (
+    "Rows with several training seeds (n = episodes x seeds; each seed's run trained from the same demonstrations "
+    "and evaluated on the same episodes with the same per-episode seeds, only the training seed differs): each cell "
+    "is the mean over the seeds of each run's own SR / SPL / DTS, with the range over the seeds (min–max of the "
+    "per-seed values) in parentheses in place of the Wilson interval; the runs are listed under *Training seeds*. "
+    "The coverage curves pool a method's seeds too; the closed-loop diagnostics and the hand-off tables list each "
+    "seed's run (`<label> @s<k>`)."
+)
+PAIRED_SEED_NOTES = (
+    "With several training seeds on either side (pairs: episodes (method's x NUE's seeds)), a difference is the mean "
+    "over the episodes every seed's run of both ran of the method's seed mean minus NUE's, and its interval a "
+    "two-level bootstrap (10,000 resamples, seed 0): each resample draws each side's seeds with replacement, then the "
+    "episodes (paired), so it covers both the sampling of episodes and of training seeds (with 3 seeds it "
+    "understates the seed part: the bootstrap variance of a mean of 3 draws is 2/3 of the unbiased one). Each pair "
+    "of seeds' runs also gets its own episode bootstrap; a comparison whose verdict differs between them is listed "
+    "below the table."
+)
+
+
+def seed_notes(rows: Sequence[TableRow]) -> str:
+    """:data:`SEED_NOTES` and the *Training seeds* table (:func:`format_seeds_markdown`) when some row has several
+    seeds, with a blank line before; '' otherwise (a single-seed table is unchanged)."""
+    seeds = format_seeds_markdown(rows)
+    return f"\n{SEED_NOTES}\n\nTraining seeds (each run's totals):\n\n{seeds}" if seeds else ""
+
+
+def paired_markdown(diffs: Sequence[PairedDiff]) -> str:
+    """The paired-differences table, then (several training seeds) :data:`PAIRED_SEED_NOTES` and the comparisons
+    whose verdict depends on the seed (:func:`nue.evaluate.paired.seed_dependence_markdown`)."""
+    text = format_paired_markdown(diffs)
+    if not any(d.seed_pairs for d in diffs):
+        return text
+    depends = seed_dependence_markdown(diffs)
+    return (f"{text}\n{PAIRED_SEED_NOTES}\n\n" + (f"Verdicts that depend on the seed:\n\n{depends}" if depends else
+                                                "No verdict depends on the seed: every pair of seeds' runs agrees with the pooled one.\n"))
 
 
 NOTES = (
@@ -305,8 +333,8 @@ def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = Tr
     out.mkdir(parents=True, exist_ok=True)
     rows = build_table(records)
     paper = paper_table() if reference else None
-    md = (f"# Table I\n\n{format_markdown(rows, paper)}\n{NOTES}\n\n## Episodes per cell (successes / episodes)\n\n"
-          f"{format_counts_markdown(rows)}\n{unreachable_markdown(records)}## Paired differences to NUE\n\n{format_paired_markdown(paired_differences(records))}"
+    md = (f"# Table I\n\n{format_markdown(rows, paper)}\n{NOTES}\n{seed_notes(rows)}\n## Episodes per cell (successes / episodes)\n\n"
+          f"{format_counts_markdown(rows)}\n{unreachable_markdown(records)}## Paired differences to NUE\n\n{paired_markdown(paired_differences(records))}"
           f"\n## Closed-loop diagnostics\n\n{closed_loop_markdown(records, task)}")
     handoff = handoff_markdown(records)
     if handoff:
@@ -319,9 +347,14 @@ def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = Tr
 
 
 def coverage_curves(records: Sequence[EpisodeRecord]) -> dict[str, np.ndarray]:
-    """Mean seen-area-vs-step curve (m²) per method of the table (canonical names, in table order)."""
-    keys = order_methods({canonical_method(r.method) for r in records})
-    return cov.mean_coverage_curves(records, keys, method_of=lambda r: canonical_method(r.method))
+    """Mean seen-area-vs-step curve (m²) per method of the table (canonical names, in table order); a method's
+    training seeds are one method, as in Table I (the mean over all its seeds' episodes: with the same episodes per
+    seed, the mean of the seeds' mean curves)."""
+    def key(r: EpisodeRecord) -> str:
+        return canonical_method(split_seed(r.method)[0])
+
+    keys = order_methods({key(r) for r in records})
+    return cov.mean_coverage_curves(records, keys, method_of=key)
 
 
 def ordering_markdown(rows: Sequence[TableRow], paper: Mapping) -> str:

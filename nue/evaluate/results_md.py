@@ -2,7 +2,9 @@
 next to the paper, its ordering, the earlier recipes' rows, paired differences, coverage and closed-loop
 diagnostics, then one section per further episode set (``results/records_<set>.jsonl``), the further sets
 pooled, then the discussion.
-The tables themselves are :mod:`nue.evaluate.report`'s."""
+The tables themselves are :mod:`nue.evaluate.report`'s. A method trained with several seeds (runs ``<model>@s<k>``) is
+one row of seed means in each Table I, and its paired differences pool seeds x episodes (:mod:`nue.evaluate.paired`);
+the notes on seeds appear only then, so a table of single runs reads as before."""
 
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from typing import Mapping, Sequence
 from nue.evaluate import coverage as cov
 from nue.evaluate.report import (
     NOTES, handoff_markdown, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
-    format_markdown, format_paired_markdown, method_label, paired_differences, paper_table, unreachable_markdown,
+    format_markdown, method_label, paired_differences, paired_markdown, paper_table, seed_notes, unreachable_markdown,
 )
 from nue.sim.record import EpisodeRecord
 
@@ -27,13 +29,13 @@ def _counts_markdown(records: Sequence[EpisodeRecord], rows) -> str:
 MAIN_SET = "Table I's episodes"
 """The name the main records go by among the sets :func:`pooled_section_markdown` pools."""
 
-_EARLIER_RECIPE = re.compile(r"_v[0-9]+[a-z]?(\+swap)?$")
+_EARLIER_RECIPE = re.compile(r"_v[0-9]+[a-z]?(@s[0-9]+)?(\+swap)?$")
 
 
 def is_earlier_recipe(method: str) -> bool:
     """Whether a record's method names an earlier recipe's model (``nue_v2``, ``fr_v1``) or an earlier run of a
     recipe (``nue_v5a``), with or without the swapped-maps control: a ``_v<N>`` or ``_v<N><letter>`` suffix
-    (then ``+swap``)."""
+    (then a training seed's ``@s<k>``, then ``+swap``). A current recipe's seed run (``nue@s1``) is not one."""
     return bool(_EARLIER_RECIPE.search(method))
 
 
@@ -46,7 +48,7 @@ def _comparison_parts(rows, paper, records: Sequence[EpisodeRecord], where: str)
         parts.append(f"Ordering by total SR{where}:\n\n{ordering}")
     diffs = paired_differences(records)
     if diffs:
-        parts.append(f"Paired differences to NUE{where} (95% paired bootstrap):\n\n{format_paired_markdown(diffs)}")
+        parts.append(f"Paired differences to NUE{where} (95% paired bootstrap):\n\n{paired_markdown(diffs)}")
     curves = coverage_curves(records)
     if curves:
         parts.append(f"Exploration coverage{where} (mean seen floor area, m²):\n\n"
@@ -65,7 +67,7 @@ def set_section_markdown(name: str, records: Sequence[EpisodeRecord], descriptio
     rows = build_table(current)
     paper = paper_table()
     parts = [f"## Table I on `{name}`" + (f": {description}" if description else "") + "\n\n"
-             f"{format_markdown(rows, paper)}\n{NOTES}\n\n"
+             f"{format_markdown(rows, paper)}\n{NOTES}\n{seed_notes(rows)}\n"
              f"Episodes per cell (successes / episodes):\n\n{_counts_markdown(current, rows)}"]
     if earlier:
         parts.append(f"Earlier recipes on `{name}` (`<method>_v<N>`, see \"Earlier recipes\" above; kept in the "
@@ -159,7 +161,7 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
         "by `nue.evaluate.results_md.render_results_md`.\n",
         f"| | |\n|---|---|\n{info}\n",
         f"## Episodes per cell (successes / episodes)\n\n{_counts_markdown(current, rows)}",
-        f"## Table I: ours next to the paper\n\n{format_markdown(rows, paper)}\n{NOTES}\n",
+        f"## Table I: ours next to the paper\n\n{format_markdown(rows, paper)}\n{NOTES}\n{seed_notes(rows)}",
     ]
     ordering = ordering_markdown(rows, paper)
     if ordering:
@@ -174,7 +176,7 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
         parts.append("## Paired differences to NUE\n\nPer method, the mean over the episodes both it and NUE ran "
                      "(matched on scene and episode id) of its result minus NUE's, with a 95% paired-bootstrap "
                      "interval (10,000 resamples, seed 0). The episode count resolves the ordering when the "
-                     f"interval excludes 0.\n\n{format_paired_markdown(diffs)}")
+                     f"interval excludes 0.\n\n{paired_markdown(diffs)}")
     curves = coverage_curves(records)
     if curves:
         parts.append("## Exploration coverage (mean seen floor area, m²)\n\nEpisodes that ended keep their final "

@@ -1,4 +1,5 @@
-"""Small statistics for evaluation reports: Wilson score interval of a success rate, paired bootstrap of differences."""
+"""Small statistics for evaluation reports: Wilson score interval of a success rate, paired bootstrap of differences
+(over episodes, or over training seeds and episodes)."""
 
 from __future__ import annotations
 
@@ -44,3 +45,48 @@ def paired_bootstrap(d: np.ndarray, n_boot: int = 10_000, seed: int = 0, level: 
         means[s:s + b] = d[rng.integers(0, n, size=(b, n))].mean(axis=1)
     lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2], axis=0)
     return d.mean(axis=0), lo, hi
+
+
+def seed_episode_bootstrap(a: np.ndarray, b: np.ndarray, n_boot: int = 10_000, seed: int = 0, level: float = 0.95,
+                           chunk: int = 1000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Paired difference of two methods trained with several seeds: mean and two-level percentile interval.
+
+    ``a``: (S_a, n, k) outcomes of method A's S_a training seeds on n episodes (k metrics); ``b``: (S_b, n, k) of
+    the reference on the same episodes in the same order. The estimate is ``mean_i (ā_i - b̄_i)``, ā_i the mean of
+    episode i over A's seeds. Each resample draws S_a of A's seeds and S_b of the reference's with replacement, then
+    n episodes with replacement (the same episodes for both: paired), and takes the mean over the drawn episodes of
+    (drawn A seeds' mean - drawn reference seeds' mean); the interval is the ``(1 - level) / 2`` and
+    ``(1 + level) / 2`` quantiles of those means. It so covers both the sampling of episodes and of training seeds
+    (with few seeds it understates the seed part: the plug-in variance of a mean of S draws is (S - 1) / S of the
+    unbiased one). With S_a = S_b = 1 it is :func:`paired_bootstrap` of ``a[0] - b[0]``.
+
+    Example: A's two seeds succeed on every episode / on none, the reference's one seed on none. The drawn A seeds'
+    mean is 0, 0.5 or 1 with probabilities 1/4, 1/2, 1/4 whatever episodes are drawn, so the estimate is 0.5 and the
+    95% interval [0, 1]; :func:`paired_bootstrap` of the seed-averaged differences (0.5 on every episode) gives
+    [0.5, 0.5], blind to the seeds' disagreement.
+
+    Returns ``(mean (k,), lo (k,), hi (k,))``; ``numpy.random.default_rng(seed)``, ``chunk`` resamples at a time.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a = a[..., None] if a.ndim == 2 else a
+    b = b[..., None] if b.ndim == 2 else b
+    if a.shape[1:] != b.shape[1:]:
+        raise ValueError(f"episodes x metrics differ: {a.shape[1:]} vs {b.shape[1:]}")
+    (sa, n, k), sb = a.shape, b.shape[0]
+    rng = np.random.default_rng(seed)
+    means = np.empty((n_boot, k))
+    flat_a = a.transpose(1, 0, 2).reshape(n, sa * k)
+    flat_b = b.transpose(1, 0, 2).reshape(n, sb * k)
+    for s in range(0, n_boot, chunk):
+        m = min(chunk, n_boot - s)
+        wa = rng.multinomial(sa, np.full(sa, 1 / sa), size=m) / sa  # (m, S_a): each drawn seed's weight
+        wb = rng.multinomial(sb, np.full(sb, 1 / sb), size=m) / sb
+        idx = rng.integers(0, n, size=(m, n))
+        # how often each episode was drawn, so a seed's mean over the drawn episodes is one matrix product
+        times = np.bincount((idx + n * np.arange(m)[:, None]).ravel(), minlength=m * n).reshape(m, n).astype(np.float64)
+        per_seed_a = (times @ flat_a).reshape(m, sa, k) / n
+        per_seed_b = (times @ flat_b).reshape(m, sb, k) / n
+        means[s:s + m] = np.einsum("ms,msk->mk", wa, per_seed_a) - np.einsum("ms,msk->mk", wb, per_seed_b)
+    lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2], axis=0)
+    return (a.mean(axis=0) - b.mean(axis=0)).mean(axis=0), lo, hi

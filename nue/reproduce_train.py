@@ -1,0 +1,95 @@
+"""The training stage of ``nue reproduce``: one job per training run of the recipe (every seed of every model,
+:meth:`nue.recipe.Recipe.training_runs`), each ``nue train --resume`` into ``OUT/runs/<run>`` with closed-loop
+selection (and DAgger rounds if the recipe has them), side by side on worker processes or Ray tasks.
+
+A model's seeds differ in the training seed only (``TrainConfig.seed``, :func:`nue.recipe.training_seed`) and in
+their run folder: the same demonstrations, budget, selection episodes and everything else of the recipe.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable
+
+from nue.jobs import Job, run_jobs
+from nue.policy.config import get_model_config
+from nue.recipe import Recipe
+from nue.train.bc import TrainConfig, train
+from nue.train.collect import CollectConfig
+from nue.train.dagger import DaggerConfig, run_dagger
+
+if TYPE_CHECKING:
+    from nue.reproduce import RunFolders
+
+
+@dataclass(frozen=True)
+class TrainJob:
+    """One training run, as it travels to a worker."""
+
+    train: TrainConfig
+    """Behaviour cloning (round 0 with DAgger)."""
+    collect: CollectConfig
+    """The demonstrations' collection (DAgger re-collects its episodes with the policy driving)."""
+    dagger: DaggerConfig | None
+    """DAgger schedule, or None for plain behaviour cloning."""
+    scenes_root: str
+    """Where the training houses are."""
+    progress: bool
+    """Show the training progress bar (single process only)."""
+
+
+def collect_config(recipe: Recipe, device: str = "cpu") -> CollectConfig:
+    """The demonstrations of a recipe (shared by all its training runs)."""
+    return CollectConfig(task=recipe.task, memory=recipe.memory, houses=recipe.train_houses,
+                         episodes_per_bin=recipe.episodes_per_bin, heldout_per_bin=recipe.heldout_per_bin,
+                         seed=recipe.seed, device=device, expert=recipe.expert, noise=recipe.noise)
+
+
+def train_config(recipe: Recipe, run: str, folders: "RunFolders", device: str = "cpu", compile: bool = False) -> TrainConfig:
+    """``nue train`` of one training run under a recipe (budget, batch, precision, map dropout, selection): ``run`` is
+    a model (its seed 0) or one of its seeds (``nue@s1``, :meth:`~nue.recipe.Recipe.training_run`), which sets the
+    run folder and the training seed; ``compile`` is how it runs (``nue train --compile``), not part of the recipe."""
+    r = recipe.training_run(run)
+    model = r.model
+    cfg = get_model_config(model)
+    return TrainConfig(
+        data=str(folders.demos), out=str(folders.run(r.name)), model=model, steps=recipe.train_steps(model),
+        batch_size=recipe.batch_for(model), seq_len=recipe.seq_len, lr=recipe.lr, warmup=recipe.warmup,
+        time_budget_s=60 * recipe.train_minutes, budget_clock=recipe.budget_clock, eval_every=recipe.step_plan(model).eval_every, seed=r.seed,
+        device=device, precision=recipe.precision, compile=compile, map_dropout=recipe.map_dropout if cfg.uses_memory_maps else 0.0,
+        select=recipe.select, select_episodes=str(folders.episodes_root / "select"),
+        select_candidates=recipe.select_candidates, select_scenes_root=str(folders.scenes_root))
+
+
+def train_model(job: Job) -> dict:
+    """Worker: one training run (resuming its run folder); its best checkpoint, steps, model and training seed. One
+    torch thread, as every job of ``run_jobs``."""
+    p: TrainJob = job.payload
+    t0 = time.perf_counter()
+    if p.dagger is None:
+        res = train(p.train, resume=True, progress=p.progress)
+        out = {"best": str(res.best), "steps": res.step, "train_seconds": res.elapsed_s}
+    else:
+        rounds = run_dagger(p.train, p.collect, p.dagger, p.scenes_root, workers=1, progress=p.progress)
+        out = {"best": str(rounds[-1]["best"]), "rounds": rounds}
+    return {**out, "model": p.train.model, "seed": p.train.seed, "seconds": time.perf_counter() - t0}
+
+
+def run_training(recipe: Recipe, folders: "RunFolders", stages: list[str], workers: int, ray_address, device, progress,
+                 finish: Callable[[str, float, dict], None], compile: bool = False) -> None:
+    """The training runs of ``stages`` (``train/<run>``) side by side on ``workers`` processes (or Ray tasks), one
+    torch thread each; ``finish(stage, seconds, summary)`` as each ends."""
+    dagger = None
+    if recipe.dagger_rounds:
+        dagger = DaggerConfig(rounds=recipe.dagger_rounds, beta0=recipe.dagger_beta, steps_per_round=recipe.dagger_steps,
+                              episodes_per_bin=recipe.dagger_episodes_per_bin, round_budget_s=60 * recipe.train_minutes)
+    single = workers <= 1 and not ray_address
+    jobs = [Job(stage, TrainJob(train_config(recipe, stage.removeprefix("train/"), folders, device, compile),
+                                collect_config(recipe, device), dagger, str(folders.scenes_root), progress and single))
+            for stage in stages]
+
+    def on_result(job: Job, result: dict) -> None:
+        finish(job.key, result["seconds"], result)
+
+    run_jobs(jobs, train_model, on_result, workers=workers, ray_address=ray_address, desc="train", progress=progress)
