@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 export LP_NUM_THREADS ?= 1
 export PYTHONHASHSEED ?= 0
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test lint bench clean
 
 setup: $(STAMP)
 
@@ -21,8 +21,12 @@ $(STAMP): pyproject.toml
 demo: setup
 	$(BIN)/nue demo --out outputs/demo
 
-test: setup
+test: setup lint
 	$(BIN)/python -m pytest -q
+
+# ruff (configured in pyproject.toml).
+lint: setup
+	$(BIN)/ruff check nue tests benchmarks scripts
 
 bench: setup
 	$(BIN)/python benchmarks/_run_all.py

@@ -35,8 +35,8 @@ def main(records_path: str = "results/records.jsonl") -> dict:
         key = (r["scene"], r["episode_id"])
         if key not in geo:
             continue
-        for k, l in enumerate(geo[key]):
-            spl[r["method"]][k].append(float(r["success"]) * l / max(l, r["path_length"]))
+        for k, geo_len in enumerate(geo[key]):
+            spl[r["method"]][k].append(float(r["success"]) * geo_len / max(geo_len, r["path_length"]))
     return {
         "episodes": len(geo),
         "fmm_over_octile_geodesic": {"mean": float(ratio.mean()), "min": float(ratio.min()), "max": float(ratio.max())},

@@ -151,7 +151,7 @@ def main() -> None:
     elapsed = time.perf_counter() - t_start
     result = {m: summarise(clocks[m], runs[m]) for m in methods}
     bare = result["expert"]["ms_median"]["env_step"] if "expert" in result else None
-    for m, r in result.items():
+    for r in result.values():
         r["steps_per_s"] = 1000.0 / r["sum_of_medians_ms"]
         if bare:
             r["ratio_to_bare_env_step"] = r["sum_of_medians_ms"] / bare

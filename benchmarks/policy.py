@@ -28,7 +28,7 @@ import torch.nn.functional as F
 
 from _common import machine  # benchmarks/_common.py (the script's folder is on sys.path)
 from nue.policy import (
-    MODEL_PRESETS, ModelConfig, PolicyInput, angle_l1_loss, build_model, get_model_config, prepare_input,
+    MODEL_PRESETS, ModelConfig, PolicyInput, angle_l1_loss, build_model, choose_actions, get_model_config, prepare_input,
 )
 
 OUT = Path(__file__).resolve().parent / "results" / "policy.json"
@@ -65,7 +65,10 @@ def inference_ms(cfg: ModelConfig, runs: int) -> tuple[float, float]:
     times = []
     for i in range(runs + 10):
         t0 = time.perf_counter()
-        _, state = model.act(inp, state, generator=gen)
+        with torch.no_grad():  # PolicyAgent.act's model step
+            out = model(inp, state)
+        choose_actions(out.logits, False, gen)
+        state = out.state
         if i >= 10:
             times.append(time.perf_counter() - t0)
     return 1000.0 * statistics.median(times), 1000.0 * min(times)

@@ -20,7 +20,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import CACHE, median_ms, write_result  # noqa: E402
 
 from nue.policy.agent import ExpertAgent  # noqa: E402
-from nue.rollout import run_episode  # noqa: E402
 from nue.scene.generator import ensure_house  # noqa: E402
 from nue.scene.navgrid import NavGrid  # noqa: E402
 from nue.scene.scene import Scene  # noqa: E402

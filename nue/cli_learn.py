@@ -156,7 +156,7 @@ def train_cmd(
 
 @config_command
 def dagger_cmd(
-    cfg: TrainConfig = TRAIN.but(
+    cfg: TrainConfig = TRAIN.but(  # noqa: B008  (an option declaration, like typer.Option)
         "time_budget_s",
         data={"help": "The expert collection (`nue collect --out`); its manifest says which training episodes the "
                       "rounds revisit."},

@@ -115,7 +115,7 @@ def checkpoint_table(root: Path, run: Path, models: list[str]) -> str:
     """The markdown table of the run's models (needs the package: ``.venv/bin/python``)."""
     from nue.evaluate.diagnose import record_diagnostics
     from nue.evaluate.metrics import summarize
-    from nue.evaluate.report import load_records, method_label, paired_differences
+    from nue.evaluate.report import method_label, paired_differences
     from nue.sim.record import EpisodeRecord
     from nue.train.checkpoint import load_policy
 

@@ -384,7 +384,7 @@ def test_bad_habitat_episodes_are_refused_by_expert_too(capsys, tmp_path):
 def _break_obj(folder, line):
     obj = folder / "mesh_z_up.obj"
     lines = obj.read_text().splitlines()
-    i = next(k for k, l in enumerate(lines) if l.startswith("v "))
+    i = next(k for k, ln in enumerate(lines) if ln.startswith("v "))
     lines[i] = line
     obj.write_text("\n".join(lines) + "\n")
     return i + 1

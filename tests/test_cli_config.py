@@ -89,7 +89,7 @@ def test_every_config_option_has_the_default_and_type_its_dataclass_has():
     """The fields are read from source without importing it; the imported class must agree."""
     seen = set()
     for path, command in _commands().items():
-        for name, group in getattr(command.callback, "config_options", {}).items():
+        for group in getattr(command.callback, "config_options", {}).values():
             module, _, cls_name = group.ref.partition(":")
             cls = getattr(importlib.import_module(module), cls_name)
             real = {f.name: f for f in dataclasses.fields(cls)}

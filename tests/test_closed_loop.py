@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from nue.evaluate.runner import EvalConfig, run_eval
+from nue.errors import DataError
 from nue.policy.agent import ExpertAgent, NoisyAgent
 from nue.rollout import run_episode
 from nue.sim.env import ImageNavEnv
@@ -129,7 +129,7 @@ def test_noisy_collection_records_labels_and_executed_actions(tmp_path):
     differs = sum(int((a["action"] != a["executed"]).sum()) for a in data.episodes)
     assert differs > 0
     assert all(m["success"] for m in data.metas)
-    with pytest.raises(Exception):
+    with pytest.raises(DataError, match="noise"):
         CollectConfig(noise=1.5)
 
 
@@ -168,7 +168,7 @@ def test_pick_best_prefers_success_then_spl_then_fewer_collisions():
     ranked = pick_best(recs, paths, {k: int(k[5:]) for k in recs})
     assert [c.name for c in ranked] == ["step_000300", "step_000100", "step_000200"]
     assert isinstance(ranked[0], CandidateScore) and ranked[0].sr == 0.75
-    with pytest.raises(Exception):
+    with pytest.raises(DataError, match="other episodes"):
         pick_best({"a": recs["step_000100"], "b": recs["step_000200"][:2]}, {"a": "", "b": ""}, {"a": 1, "b": 2})
 
 

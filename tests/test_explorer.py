@@ -146,7 +146,7 @@ def test_floor_behind_a_wall_is_not_seen(box_nav, box_renderer):
 
 def test_explorer_succeeds_on_the_ci_episodes(paper_runs):
     env, runs = paper_runs
-    for i, (rec, actions, modes, st) in enumerate(runs):
+    for i, (rec, _actions, _modes, st) in enumerate(runs):
         assert rec.success, (i, st)
         assert rec.collisions <= 2, (i, rec.collisions)
         assert st["explore_steps"] <= 250
@@ -156,12 +156,12 @@ def test_goal_out_of_view_explores_frontiers_then_switches_for_good(paper_runs):
     _, runs = paper_runs
     out_of_view = [r for r in runs if not r[3]["goal_in_view_at_start"]]
     assert len(out_of_view) >= 3  # the inner wall hides most goals at the start
-    for rec, actions, modes, st in out_of_view:
+    for _rec, _actions, modes, st in out_of_view:
         assert st["targets_reached"] >= 1, st  # at least one frontier target completed while exploring
         k = modes.index("geodesic") if "geodesic" in modes else len(modes)
         assert k >= 1 and set(modes[:k]) == {"explore"} and set(modes[k:]) <= {"geodesic"}  # never back
         assert st["explore_steps"] == k
-    for rec, actions, modes, st in runs:
+    for _rec, _actions, _modes, st in runs:
         if st["goal_in_view_at_start"]:
             assert st["explore_steps"] == 0 and st["switch"] == "goal_in_view"
 

@@ -9,13 +9,13 @@ import pytest
 from nue.evaluate.metrics import EpisodeRecord, aggregate, dts, format_table, spl, success
 
 
-def rec(i, difficulty, ok, l, p, final_geo, r=0.8, collisions=0):
+def rec(i, difficulty, ok, geo, p, final_geo, r=0.8, collisions=0):
     return EpisodeRecord(
         episode_id=str(i),
         scene="s",
         difficulty=difficulty,
         success=ok,
-        geodesic_start=l,
+        geodesic_start=geo,
         path_length=p,
         final_geodesic=final_geo,
         final_euclidean=final_geo,

@@ -115,7 +115,7 @@ def test_bad_input_is_rejected_or_masked(frames):
     bad[60:70] = np.inf
     nerf.observe(rgb, bad, pose)
     assert nerf.replay_len == 1
-    bundle, target = nerf._sample_training_rays(4096)
+    bundle, target = nerf._rays(*nerf._draw_rays(4096))  # how _training_batches draws its rays
     assert torch.isfinite(bundle.ranges).all()
     rows = torch.div(nerf._valid[0, : nerf._n_valid[0]], CAMERA.width, rounding_mode="floor")
     assert rows.min() >= 70

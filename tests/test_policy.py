@@ -26,6 +26,7 @@ from nue.policy import (
     SubsampledPointwiseConv,
     angle_l1_loss,
     build_model,
+    choose_actions,
     detach_state,
     get_model_config,
     prepare_input,
@@ -411,19 +412,25 @@ def test_act_greedy_and_sampling(name):
     torch.manual_seed(0)
     model = build_model(cfg).eval()
     inp = random_input(cfg, 4, torch.Generator().manual_seed(5))
+
+    def act(greedy=False, generator=None):  # what PolicyAgent.act does, batched
+        with torch.no_grad():
+            out = model(inp, model.initial_state(4))
+        return choose_actions(out.logits, greedy, generator), out.state
+
     with torch.no_grad():
         logits = model(inp, model.initial_state(4)).logits
-    greedy, state = model.act(inp, model.initial_state(4), greedy=True)
+    greedy, state = act(greedy=True)
     assert torch.equal(greedy, logits.argmax(-1)) and greedy.dtype == torch.long
     assert (state is None) == (not cfg.recurrent)
-    s1, _ = model.act(inp, model.initial_state(4), generator=torch.Generator().manual_seed(9))
-    s2, _ = model.act(inp, model.initial_state(4), generator=torch.Generator().manual_seed(9))
+    s1, _ = act(generator=torch.Generator().manual_seed(9))
+    s2, _ = act(generator=torch.Generator().manual_seed(9))
     assert torch.equal(s1, s2) and s1.shape == (4,)
     last = (model.fusion.policy if name == "nue" else model.policy)[-1]
     with torch.no_grad():  # a head that puts all mass on action 1
         last.weight.zero_()
         last.bias.copy_(torch.tensor([-50.0, 50.0, -50.0]))
-    sampled, _ = model.act(inp, model.initial_state(4), generator=torch.Generator().manual_seed(1))
+    sampled, _ = act(generator=torch.Generator().manual_seed(1))
     assert sampled.tolist() == [1, 1, 1, 1]
 
 
@@ -491,7 +498,9 @@ def test_runs_on_cuda():
         cfg = get_model_config(name)
         model = build_model(cfg).cuda().eval()
         inp = random_input(cfg, 2, torch.Generator().manual_seed(0)).to("cuda")
-        actions, _ = model.act(inp, model.initial_state(2, "cuda"), generator=torch.Generator("cuda").manual_seed(0))
+        with torch.no_grad():
+            logits = model(inp, model.initial_state(2, "cuda")).logits
+        actions = choose_actions(logits, generator=torch.Generator("cuda").manual_seed(0))
         assert actions.device.type == "cuda"
 
 

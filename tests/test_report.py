@@ -21,8 +21,8 @@ from nue.viz.coverage import write_coverage_figure
 Z = 1.959963984540054
 
 
-def rec(i, difficulty, ok, l=2.0, p=2.0, final_geo=0.5, method="nue", scene="s0", **extra):
-    return EpisodeRecord(episode_id=str(i), scene=scene, difficulty=difficulty, success=ok, geodesic_start=l,
+def rec(i, difficulty, ok, geo=2.0, p=2.0, final_geo=0.5, method="nue", scene="s0", **extra):
+    return EpisodeRecord(episode_id=str(i), scene=scene, difficulty=difficulty, success=ok, geodesic_start=geo,
                          path_length=p, final_geodesic=final_geo, final_euclidean=final_geo, success_radius=0.8,
                          method=method, extra=dict(extra))
 

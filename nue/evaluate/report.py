@@ -97,7 +97,7 @@ def format_markdown(rows: Sequence[TableRow], paper: Mapping | None = None) -> s
     groups = _groups(rows)
     head = ["method", "n"] + [f"{g.capitalize()} {m}" for g in groups for m in ("SR %", "SPL", "DTS")]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for source, row, p in _rows_with_paper(rows, paper):
+    for _source, row, p in _rows_with_paper(rows, paper):
         if p is None:
             cells = [c for g in groups for c in _cell_texts(row.cells[g])]
             lines.append(f"| {row.label} | {_n_text(row)} | " + " | ".join(cells) + " |")
@@ -176,7 +176,7 @@ def format_latex(rows: Sequence[TableRow], paper: Mapping | None = None) -> str:
            " & " + " & ".join(rf"\multicolumn{{3}}{{c}}{{{g.capitalize()}}}" for g in groups) + r" \\",
            " ".join(rf"\cmidrule(lr){{{2 + 3 * i}-{4 + 3 * i}}}" for i in range(len(groups))),
            "Method & " + " & ".join("SR & SPL & DTS" for _ in groups) + r" \\", r"\midrule"]
-    for source, row, p in _rows_with_paper(rows, paper):
+    for _source, row, p in _rows_with_paper(rows, paper):
         if p is None:
             cells = []
             for g in groups:

@@ -215,10 +215,6 @@ class OnlineNeRF:
         bundle = self.pixel_rays.bundle(self._poses[frames], pix, self._ranges[frames, pix])
         return bundle, self._rgb[frames, pix].float() / 255.0
 
-    def _sample_training_rays(self, n_rays: int) -> tuple[RayBundle, torch.Tensor]:
-        """Rays drawn from the replay, each with its own frame's colour: (bundle, rgb (R, 3) in [0, 1])."""
-        return self._rays(*self._draw_rays(n_rays))
-
     # ----------------------------------------------------------------- field evaluation
     def _query(self, bundle: RayBundle, n_samples: int, generator: torch.Generator | None):
         samples = depth_guided_samples(bundle.ranges, n_samples, self.config.sampler, generator)

@@ -6,12 +6,14 @@ Every model shares one interface (:class:`PolicyModel`)::
     model = build_model(cfg)
     inp = prepare_input(rgb, depth, goal_rgb, i_u, i_cog, cfg)     # PolicyInput, batch 1
     state = model.initial_state(1)
-    actions, state = model.act(inp, state, greedy=False, generator=g)
+    out = model(inp, state)                                         # eval mode, under torch.no_grad()
+    actions, state = choose_actions(out.logits, greedy=False, generator=g), out.state
     out = model.forward_sequence(batch_TB, state, reset_mask)      # training: logits (T, B, A)
     loss = F.cross_entropy(...) + lam * angle_l1_loss(out.aux_angle, target)  # aux_angle None without AT
 """
 
-from nue.policy.base import PolicyModel, PolicyOutput, State, angle_l1_loss, detach_state, wrap_angle_t
+from nue.policy.base import (PolicyModel, PolicyOutput, State, angle_l1_loss, choose_actions, detach_state,
+                             wrap_angle_t)
 from nue.policy.baselines import FRPolicy, NavA3CPolicy
 from nue.policy.blocks import CBAM, ChannelAttention, ConvBranch, ResidualBlock, SpatialAttention, SubsampledPointwiseConv
 from nue.policy.config import ABLATION_PRESETS, MODEL_PRESETS, ModelConfig, get_model_config
@@ -30,6 +32,6 @@ def build_model(config: ModelConfig | str) -> PolicyModel:
 __all__ = [
     "ABLATION_PRESETS", "CBAM", "ChannelAttention", "ConvBranch", "FRPolicy", "FusionHead", "MODEL_PRESETS",
     "ModelConfig", "NUEPolicy", "NavA3CPolicy", "PolicyInput", "PolicyModel", "PolicyOutput", "ResidualBlock",
-    "SpatialAttention", "State", "SubsampledPointwiseConv", "angle_l1_loss", "build_model", "detach_state", "get_model_config",
+    "SpatialAttention", "State", "SubsampledPointwiseConv", "angle_l1_loss", "build_model", "choose_actions", "detach_state", "get_model_config",
     "prepare_goal", "prepare_input", "wrap_angle_t",
 ]

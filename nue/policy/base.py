@@ -2,7 +2,7 @@
 
 * ``forward(inp, state, reset_mask) -> PolicyOutput(logits (B, A), aux_angle (B,) | None, state)``
 * ``forward_sequence(inp (T, B, ...), state, reset_mask (T, B)) -> PolicyOutput((T, B, A), (T, B) | None, state)``
-* ``initial_state(batch_size, device)``; ``act(inp, state, greedy, generator) -> (actions (B,), state)``
+* ``initial_state(batch_size, device)``; actions (B,) from the logits with :func:`choose_actions`
 
 ``state`` is None for the reactive models and the LSTM's ``(h, c)``, each (B, lstm_dim), for
 Nav-A3C. ``reset_mask`` (bool) marks rows whose episode starts at that step: their state is
@@ -63,7 +63,7 @@ def choose_actions(logits: Tensor, greedy: bool = False, generator: torch.Genera
 
 
 class PolicyModel(nn.Module):
-    """Base class: holds the config, implements ``forward_sequence`` by folding T into B, and ``act``."""
+    """Base class: holds the config, implements ``forward_sequence`` by folding T into B."""
 
     def __init__(self, config: ModelConfig):
         super().__init__()
@@ -84,22 +84,6 @@ class PolicyModel(nn.Module):
         out = self.forward(inp.flatten_time(), None)
         aux = None if out.aux_angle is None else out.aux_angle.reshape(t, b)
         return PolicyOutput(out.logits.reshape(t, b, -1), aux, state)
-
-    @torch.no_grad()
-    def act(
-        self,
-        inp: PolicyInput,
-        state: State = None,
-        greedy: bool = False,
-        generator: torch.Generator | None = None,
-        reset_mask: Tensor | None = None,
-    ) -> tuple[Tensor, State]:
-        """Choose actions (B,) long: argmax if ``greedy``, else a sample from softmax(logits) (eq. 14).
-
-        Call ``model.eval()`` first: batch norm uses its running statistics only then.
-        """
-        out = self.forward(inp, state, reset_mask)
-        return choose_actions(out.logits, greedy, generator), out.state
 
     def _check_input(self, inp: PolicyInput) -> None:
         c = self.config

@@ -109,12 +109,6 @@ def _pixel_directions(camera: CameraConfig) -> np.ndarray:
     return d
 
 
-def _frame_points(depth: np.ndarray, pose, camera: CameraConfig, floor_z: float):
-    """(H, W) z-depth with NaN -> 0, and its world points (H, W, 3)."""
-    z = np.nan_to_num(np.asarray(depth, dtype=np.float64).reshape(camera.height, camera.width), nan=0.0)
-    return z, depth_to_points(z, pose, camera, floor_z)
-
-
 def _mark(mask: np.ndarray, grid: GridLike, xy: np.ndarray) -> None:
     """Set the cells containing world points ``xy`` (K, 2) (those inside the grid) of a fresh ``mask`` (written
     through flat indices, cheaper than a 2-d fancy write)."""

@@ -43,11 +43,6 @@ class CameraConfig:
         """Principal point y: the image centre, in pixels."""
         return self.height / 2.0
 
-    @property
-    def hfov_deg(self) -> float:
-        """Horizontal field of view in degrees."""
-        return math.degrees(2.0 * math.atan(self.width / (2.0 * self.fx)))
-
     def scaled(self, width: int, height: int) -> "CameraConfig":
         """The same camera at another resolution (intrinsics scaled with it)."""
         return dataclasses.replace(
