@@ -24,12 +24,13 @@ demo: setup
 test: setup lint
 	$(BIN)/python -m pytest -q
 
-# ruff (configured in pyproject.toml).
+# ruff and mypy, both configured in pyproject.toml.
 lint: setup
 	$(BIN)/ruff check nue tests benchmarks scripts
+	$(BIN)/mypy nue
 
 bench: setup
 	$(BIN)/python benchmarks/_run_all.py
 
 clean:
-	rm -rf outputs .pytest_cache
+	rm -rf outputs .pytest_cache .mypy_cache .ruff_cache

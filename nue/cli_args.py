@@ -19,7 +19,7 @@ from nue.errors import ConfigError, NueError
 try:  # typer >= 0.26 ships its own copy of click, whose usage errors these are
     from typer._click import exceptions as click_errors
 except ImportError:  # pragma: no cover - an older typer runs on click itself
-    from click import exceptions as click_errors
+    from click import exceptions as click_errors  # type: ignore[no-redef]
 
 
 def positive(option: str, value: int | float) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 import typer
 
@@ -164,7 +164,7 @@ def report_cmd(
     check_output_dir(out, "the report folder")
     if results_md:
         check_output_file(results_md)
-    read = {"drop_duplicates": drop_duplicates, "on_dropped": _echo_dropped}
+    read: dict[str, Any] = {"drop_duplicates": drop_duplicates, "on_dropped": _echo_dropped}
     recs = load_records(*records, **read)
     sets = {}
     for spec in episode_set:

@@ -25,7 +25,7 @@ from nue.scene.generator import ensure_house
 from nue.scene.scene import Scene
 from nue.sim.env import ImageNavEnv, make_env
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
-from nue.sim.episodes import load_episodes, save_episodes
+from nue.sim.episodes import Episode, load_episodes, save_episodes
 from nue.sim.task import get_task
 from nue.train.checkpoint import load_agent
 from nue.viz.figures import (fig6_uncertainty_timeline, fig7_goal_direction, fig8_gradcam, gradcam_uncertainty,
@@ -45,7 +45,7 @@ def _episodes(env: ImageNavEnv, task, seed: int, episodes_dir: Path):
     else:
         eps = generate_episodes(scene, task, EpisodeGenConfig(per_bin=1), seed=seed, navgrid=env.navgrid,
                                 renderer=env.renderer)
-    first = {}
+    first: dict[str, Episode] = {}
     for e in eps:
         first.setdefault(e.difficulty, e)
     return [first[b] for b in task.bins.names if b in first]
@@ -73,7 +73,8 @@ def run_demo(out: Path, house: int = 0, task_name: str = "paper", seed: int = 0,
     else:
         memory, agent, method = OnlineNeRF("fast", task.camera), ExpertAgent(), "expert"
 
-    records, runs, cams = [], [], []
+    records, runs = [], []
+    cams: list = []
     for ep in episodes:
         frames: list[dict] = []
         inputs: dict[int, object] = {}

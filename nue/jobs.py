@@ -25,7 +25,7 @@ import os
 import threading
 import time
 import zlib
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Sequence, TypeVar
 
@@ -177,7 +177,7 @@ def _run_pool(todo: Iterable[Job], fn, finish, workers: int, by_key: dict[str, J
     pending_jobs = list(todo)
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=worker_init,
                              initargs=(1, os.getpid())) as pool:
-        running = set()
+        running: set[Future] = set()
         # Keep at most 2 jobs per worker queued, so a kill loses little and results stream in order.
         while pending_jobs or running:
             while pending_jobs and len(running) < 2 * workers:

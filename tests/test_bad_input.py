@@ -252,6 +252,12 @@ def test_corrupt_record_files_are_one_line(capsys, tmp_path, content, problem):
     assert_refused(capsys, ["diagnose", "--records", rec], rec, problem)
 
 
+def test_a_record_file_that_is_not_utf8_is_one_line(capsys, tmp_path):
+    rec = tmp_path / "records.jsonl"
+    rec.write_bytes(b"\xff\xfe\x00garbage\n")
+    assert_refused(capsys, ["diagnose", "--records", rec], rec, "cannot read records (UnicodeDecodeError)")
+
+
 def test_missing_record_file_is_one_line(capsys, tmp_path):
     assert_refused(capsys, ["report", tmp_path / "nope.jsonl", "--out", tmp_path / "rep"], "nope.jsonl",
                    untouched=[tmp_path / "rep"])

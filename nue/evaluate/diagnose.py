@@ -195,7 +195,8 @@ def read_records(*paths, drop_duplicates: bool = False, on_dropped: OnDropped | 
         try:
             lines = Path(p).read_text().splitlines()
         except (OSError, UnicodeDecodeError) as exc:
-            raise DataError(p, f"cannot read records ({exc.strerror or type(exc).__name__})") from None
+            reason = (exc.strerror if isinstance(exc, OSError) else None) or type(exc).__name__
+            raise DataError(p, f"cannot read records ({reason})") from None
         for i, line in enumerate(lines, 1):
             if not line.strip():
                 continue

@@ -19,6 +19,8 @@ class PositionalEncoding(nn.Module):
     Example: D = 1, L = 1, x = 0.5 -> ``[0.5, sin(pi / 2), cos(pi / 2)] = [0.5, 1.0, 0.0]``.
     """
 
+    freqs: torch.Tensor  # a buffer (register_buffer), typed for the checker
+
     def __init__(self, in_dim: int, n_freqs: int, include_input: bool = True):
         super().__init__()
         self.in_dim = in_dim

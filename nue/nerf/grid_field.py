@@ -69,6 +69,15 @@ class GridField(nn.Module):
     """
 
     zero_init_keys = ("table",)
+    # buffers (register_buffer), typed for the checker
+    lo: torch.Tensor
+    strides: torch.Tensor
+    dims: torch.Tensor
+    corner_rows: torch.Tensor
+    scale_in: torch.Tensor
+    grid_offset: torch.Tensor
+    last_base: torch.Tensor
+    channel_scale: torch.Tensor
 
     def __init__(self, config: GridFieldConfig = GridFieldConfig(), radius: float = 12.0):
         super().__init__()

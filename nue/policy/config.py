@@ -182,7 +182,8 @@ class ModelConfig:
         unknown = set(data) - set(names)
         if unknown:
             raise ConfigError("model config", f"unknown field(s): {', '.join(sorted(unknown))}")
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+        fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+        return cls(**fields)
 
 
 _NUE = ModelConfig(goal_in_perception=True)

@@ -217,7 +217,7 @@ class GoalPoseEstimator:
         least ``min_rival_inliers`` inliers: ``(rvec, tvec, inlier indices into obj)``, most inliers first."""
         cfg = self.config
         idx = np.arange(len(obj))
-        out = []
+        out: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         while len(out) < cfg.hypotheses and len(idx) >= max(cfg.min_rival_inliers, 4):
             solved = self._ransac(obj[idx], img[idx])
             if solved is None or len(solved[2]) < cfg.min_rival_inliers:

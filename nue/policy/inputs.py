@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from typing import Any
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,7 +91,7 @@ class PolicyInput:
 def _combine(items: Sequence[PolicyInput], fn) -> PolicyInput:
     if not items:
         raise ValueError("need at least one PolicyInput")
-    out = {}
+    out: dict[str, Any] = {}
     for f in dataclasses.fields(PolicyInput):
         vals = [getattr(x, f.name) for x in items]
         if all(v is None for v in vals):

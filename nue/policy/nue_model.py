@@ -17,6 +17,8 @@ angle head, ``use_cbam=False`` drops both CBAMs; a dropped part is ``None`` and 
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -60,7 +62,7 @@ class NUEPolicy(PolicyModel):
             raise ValueError(f"NUEPolicy needs kind 'nue', got {config.kind!r}")
         super().__init__(config)
         c, s = config, config.negative_slope
-        cbam = dict(cbam=c.use_cbam, cbam_reduction=c.cbam_reduction, cbam_kernel=c.cbam_kernel, negative_slope=s)
+        cbam: dict[str, Any] = dict(cbam=c.use_cbam, cbam_reduction=c.cbam_reduction, cbam_kernel=c.cbam_kernel, negative_slope=s)
         self.f_u = (
             ConvBranch(1, c.uncertainty_channels, c.map_grid, c.branch_dim, **cbam) if c.use_uncertainty else None
         )

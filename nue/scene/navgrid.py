@@ -69,14 +69,14 @@ class NavGrid:
         """(N, N) bool: the traversability map itself (floor, before the erosion by the robot radius)."""
         # Erode: a pixel is free for the robot's centre if no obstacle pixel lies within the radius.
         clearance = ndimage.distance_transform_edt(trav) * resolution
-        self.fine_free = clearance > config.robot_radius
+        self.fine_free: np.ndarray = clearance > config.robot_radius
         """(N, N) bool: where the robot's centre may be (1 cm pixels)."""
         self.factor = max(1, int(round(config.cell_size / resolution)))
         self.cell = self.factor * resolution
         m = -(-self.n // self.factor)
         padded = np.zeros((m * self.factor, m * self.factor), dtype=bool)
         padded[: self.n, : self.n] = self.fine_free
-        self.free = padded.reshape(m, self.factor, m, self.factor).all(axis=(1, 3))
+        self.free: np.ndarray = padded.reshape(m, self.factor, m, self.factor).all(axis=(1, 3))
         """(M, M) bool planning grid: cell (r, c) covers fine pixels [r*f, (r+1)*f) x [c*f, (c+1)*f)."""
         self._costs = np.where(self.free, 1.0, np.inf)
         edge = ndimage.distance_transform_edt(self.free) * self.cell
@@ -127,7 +127,8 @@ class NavGrid:
         edges cost more (so paths keep to the middle of corridors); use it for steering, never as a
         distance. Cached per goal cell (LRU). If the goal's own cell is blocked, the field is all inf.
         """
-        cell = tuple(int(v) for v in self.cell_of(goal_xy))
+        r, c = (int(v) for v in self.cell_of(goal_xy))
+        cell = (r, c)
         key = (*cell, comfort)
         if key in self._fields:
             self._fields.move_to_end(key)
@@ -216,7 +217,7 @@ class NavGrid:
             pts = np.vstack([pts, np.asarray(goal_xy, dtype=np.float64)[:2]])
         return np.vstack([start_xy[:2], pts])
 
-    def snap(self, xy, on_cell: bool = False) -> tuple[np.ndarray, float]:
+    def snap(self, xy, on_cell: bool = False) -> tuple[np.ndarray | None, float]:
         """Where geodesics and the expert take world point ``xy`` (2,) to be, and how far that is from it.
 
         ``xy`` itself (distance 0) when it is navigable: the robot's centre may stand there and, with
@@ -270,7 +271,7 @@ class NavGrid:
         cells = cells[np.all((cells >= 0) & (cells < m), axis=1)]
         vals = field[cells[:, 0], cells[:, 1]] + np.linalg.norm(self.cell_centre(cells) - xy, axis=1)
         i = int(np.argmin(vals))
-        return tuple(int(v) for v in cells[i]) if np.isfinite(vals[i]) else None
+        return (int(cells[i][0]), int(cells[i][1])) if np.isfinite(vals[i]) else None
 
     def _in_grid(self, rc) -> bool:
         m = self.free.shape[0]

@@ -16,7 +16,7 @@ import os
 import tempfile
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -69,7 +69,8 @@ class Episode:
     @classmethod
     def from_dict(cls, d: dict) -> "Episode":
         """Inverse of ``dataclasses.asdict`` (JSON lists become tuples)."""
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+        fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+        return cls(**fields)
 
     @classmethod
     def from_poses(cls, episode_id, scene, start_pose, goal_pose, z: float = 0.0, **kw) -> "Episode":

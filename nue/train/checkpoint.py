@@ -30,7 +30,7 @@ import torch
 from nue.errors import CheckpointError, NueError
 from nue.nerf.config import MemoryConfig
 from nue.nerf.online import OnlineNeRF
-from nue.policy import build_model
+from nue.policy import PolicyModel, build_model
 from nue.policy.agent import PolicyAgent
 from nue.policy.config import ModelConfig
 from nue.sim.task import CameraConfig, TaskConfig
@@ -205,13 +205,13 @@ def load_header(path) -> PolicyHeader:
     return PolicyHeader.from_dict(load_checkpoint(path), path)
 
 
-def load_policy(path, device="cpu") -> tuple[torch.nn.Module, PolicyHeader]:
+def load_policy(path, device="cpu") -> tuple[PolicyModel, PolicyHeader]:
     """(model in eval mode, its header) from a checkpoint file."""
     model, header, _ = _load_policy(path, device)
     return model, header
 
 
-def _load_policy(path, device) -> tuple[torch.nn.Module, PolicyHeader, dict]:
+def _load_policy(path, device) -> tuple[PolicyModel, PolicyHeader, dict]:
     ckpt = load_checkpoint(path)
     header = PolicyHeader.from_dict(ckpt, path)
     model = build_model(header.model)
@@ -264,9 +264,9 @@ def check_compatible(header: PolicyHeader, path, task: TaskConfig | None = None,
         diff = sorted(k for k in set(trained) | set(asked) if trained.get(k) != asked.get(k))
         raise CheckpointError(path, f"memory preset differs from the trained one in: {', '.join(diff)}")
     for name, h in (scenes or {}).items():
-        trained = header.scenes.get(name)
-        if trained is not None and trained != h:
-            raise CheckpointError(path, f"scene {name} has content {h}, but the policy was trained on content {trained}")
+        trained_hash = header.scenes.get(name)
+        if trained_hash is not None and trained_hash != h:
+            raise CheckpointError(path, f"scene {name} has content {h}, but the policy was trained on content {trained_hash}")
 
 
 def policy_meta(task: TaskConfig, memory_cfg: MemoryConfig, model_cfg: ModelConfig, scenes: Mapping[str, str],

@@ -8,6 +8,7 @@ The only dict forms are the ones written to files: ``AgentSpec.to_dict`` in the 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Mapping
 
 from nue.errors import DataError
@@ -41,7 +42,8 @@ class AgentSpec:
             raise DataError(None, "a dagger agent needs a checkpoint and the expert collection (expert_steps_from)")
 
     @classmethod
-    def dagger(cls, checkpoint: str, beta: float, expert_steps_from: str, max_factor: float = 3.0) -> "AgentSpec":
+    def dagger(cls, checkpoint: str | Path, beta: float, expert_steps_from: str | Path, max_factor: float = 3.0
+               ) -> "AgentSpec":
         return cls("dagger", str(checkpoint), beta, str(expert_steps_from), max_factor)
 
     def to_dict(self) -> dict:
