@@ -321,8 +321,9 @@ def test_resumed_training_refuses_other_settings(demos, tmp_path):
     assert train(cfg.replace(select_workers=2), resume=True, progress=False).steps_this_call == 0
 
 
-@pytest.mark.parametrize("model, extra", [("nav_a3c", {}), ("nue", {"map_dropout": 0.5, "buffer_episodes": 3})],
-                         ids=["sequences", "buffers+map-dropout"])
+@pytest.mark.parametrize("model, extra", [("nav_a3c", {}), ("nue", {"map_dropout": 0.5, "buffer_episodes": 3}),
+                                          ("nue_gru", {"map_dropout": 0.5})],
+                         ids=["sequences", "buffers+map-dropout", "gru-sequences+map-dropout"])
 def test_resume_continues_from_the_saved_step_and_matches(demos, tmp_path, model, extra):
     """Killed after the checkpoint at step 6 and resumed: bit-identical weights and optimiser state (for the
     reactive model the kill falls inside a shuffle buffer, so the sampler's position must be restored)."""

@@ -102,6 +102,9 @@ class ModelConfig:
     """Hidden width of the 2-layer auxiliary angle head."""
     lstm_dim: int = 256
     """Nav-A3C only: LSTM hidden size."""
+    gru_dim: int = 0
+    """NUE only: hidden size of a GRU between the fusion (f_cat2) and the action head, carrying a state across
+    steps (0 = none, the paper's reactive fusion)."""
     negative_slope: float = 0.01
     """Slope of every LeakyReLU."""
 
@@ -122,6 +125,8 @@ class ModelConfig:
             raise ConfigError(where, "each encoder needs at least one residual block")
         if self.cbam_kernel % 2 != 1:
             raise ConfigError(where, f"cbam_kernel must be odd, got {self.cbam_kernel}")
+        if self.gru_dim < 0 or (self.gru_dim and self.kind != "nue"):
+            raise ConfigError(where, f"gru_dim must be >= 0 and applies to kind 'nue' only, got {self.gru_dim}")
         if self.max_depth <= 0 or self.uncertainty_scale <= 0:
             raise ConfigError(where, "max_depth and uncertainty_scale must be positive")
 
@@ -159,8 +164,8 @@ class ModelConfig:
 
     @property
     def recurrent(self) -> bool:
-        """The model carries a state across steps (Nav-A3C)."""
-        return self.kind == "nav_a3c"
+        """The model carries a state across steps (Nav-A3C, NUE with a GRU)."""
+        return self.kind == "nav_a3c" or self.gru_dim > 0
 
     # --- derived configs and serialisation ------------------------------------------------------
     def for_task(self, task: TaskConfig) -> "ModelConfig":
@@ -172,8 +177,12 @@ class ModelConfig:
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain-data form for checkpoints and JSON (tuples become lists)."""
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+        """Plain-data form for checkpoints and JSON (tuples become lists). ``gru_dim`` is written only when set, so
+        configs from before it existed keep their exact dict."""
+        d = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+        if not d["gru_dim"]:
+            del d["gru_dim"]
+        return d
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "ModelConfig":
@@ -191,6 +200,7 @@ _NUE = ModelConfig(goal_in_perception=True)
 MODEL_PRESETS: dict[str, ModelConfig] = {
     "nue": _NUE,
     "nue_paper": _NUE.replace(name="nue_paper", goal_in_perception=False),
+    "nue_gru": _NUE.replace(name="nue_gru", gru_dim=256),
     "abl_none": _NUE.replace(name="abl_none", use_uncertainty=False, use_aux=False, use_cbam=False),
     "abl_fu": _NUE.replace(name="abl_fu", use_uncertainty=True, use_aux=False, use_cbam=False),
     "abl_at_cbam": _NUE.replace(name="abl_at_cbam", use_uncertainty=False, use_aux=True, use_cbam=True),
