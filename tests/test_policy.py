@@ -59,6 +59,7 @@ def random_input(config: ModelConfig, batch: int, gen: torch.Generator, time: in
         goal=r(3, *config.goal_size),
         i_u=r(1, h, w) * 10.0 if config.uses_i_u else None,
         i_cog=torch.randn(*lead, config.cog_channels, h, w, generator=gen) if config.uses_i_cog else None,
+        panorama=r(*config.panorama_shape) if config.uses_panorama else None,
     )
 
 
@@ -575,3 +576,30 @@ def test_nue_gru_state_carries_information_and_resets():
             state = out.state
     with pytest.raises(ConfigError):
         get_model_config("fr").replace(gru_dim=8)
+
+
+def test_nue_pano_reads_the_panorama():
+    """The panorama branch: the logits depend on the panorama (and only models with ``panorama_dim`` read it);
+    prepare_input passes it through and refuses a missing or misshapen one."""
+    cfg = get_model_config("nue_pano").replace(map_height=12, map_width=16, frame_height=24, frame_width=32)
+    assert cfg.uses_panorama and not get_model_config("nue").uses_panorama
+    assert "panorama_dim" not in get_model_config("nue").to_dict() and ModelConfig.from_dict(cfg.to_dict()) == cfg
+    torch.manual_seed(0)
+    model = build_model(cfg).eval()
+    gen = torch.Generator().manual_seed(2)
+    inp = random_input(cfg, 2, gen)
+    other = PolicyInput(inp.rgbd, inp.goal, inp.i_u, inp.i_cog, inp.panorama.flip(1))
+    with torch.no_grad():
+        assert not torch.allclose(model(inp).logits, model(other).logits)
+        with pytest.raises(ValueError, match="panorama"):
+            model(PolicyInput(inp.rgbd, inp.goal, inp.i_u, inp.i_cog, None))
+    rgb, depth = np.zeros((180, 240, 3), np.uint8), np.ones((180, 240), np.float32)
+    pano = np.random.default_rng(0).random((8, 6, 8)).astype(np.float32)
+    got = prepare_input(rgb, depth, rgb, np.ones((45, 60)), np.zeros((64, 45, 60)), cfg.replace(map_height=45, map_width=60),
+                        panorama=pano)
+    assert got.panorama.shape == (1, 8, 6, 8) and torch.allclose(got.panorama[0], torch.from_numpy(pano))
+    with pytest.raises(ValueError, match="panorama"):
+        prepare_input(rgb, depth, rgb, np.ones((45, 60)), np.zeros((64, 45, 60)), cfg.replace(map_height=45, map_width=60))
+    with pytest.raises(ValueError, match="panorama"):
+        prepare_input(rgb, depth, rgb, np.ones((45, 60)), np.zeros((64, 45, 60)), cfg.replace(map_height=45, map_width=60),
+                      panorama=pano[:, :3])

@@ -9,6 +9,7 @@ perception f_p, and attention-weighted fusion into action logits (eqs. 8-10, 13-
             [or of [rgbd, goal] at frame size with ``goal_in_perception``, as FR's first layer]
     f_cat1 = [f_cog, f_u, f_p];  w = sigmoid(MLP(f_cat1))
     f_cat2 = MLP(w * f_cat1);    logits = MLP(f_cat2)                    eqs. 13-14
+    [with ``panorama_dim``: f_pano = MLP(flatten(log1p(panorama / s))) joins f_cat1]
     [with ``gru_dim``: h_t = GRU(f_cat2, h_{t-1}); logits = MLP(h_t)]
     aux_angle = wrap(MLP_2layer(f_cog))
 
@@ -73,7 +74,9 @@ class NUEPolicy(PolicyModel):
         self.f_cog = ConvBranch(c.cog_channels + 3, c.cognition_channels, c.map_grid, c.branch_dim, **cbam)
         self.f_p = ConvBranch(7 if c.goal_in_perception else 4, c.perception_channels, c.perception_grid, c.perception_dim, negative_slope=s)
         self.aux_head = mlp([c.branch_dim, c.aux_hidden, 1], s, final_activation=False) if c.use_aux else None
-        fused = c.branch_dim * (2 if c.use_uncertainty else 1) + c.perception_dim
+        k, hp, wp = c.panorama_shape
+        self.f_pano = mlp([k * hp * wp, 2 * c.panorama_dim, c.panorama_dim], s) if c.panorama_dim else None
+        fused = c.branch_dim * (2 if c.use_uncertainty else 1) + c.perception_dim + c.panorama_dim
         self.fusion = FusionHead(fused, config)
         self.gru = nn.GRUCell(c.fusion_dim, c.gru_dim) if c.gru_dim else None
 
@@ -96,7 +99,13 @@ class NUEPolicy(PolicyModel):
     def _fused(self, inp: PolicyInput) -> tuple[Tensor, Tensor | None]:
         """(f_cat2 (B, fusion_dim), aux angle (B,) | None)."""
         f_cog, f_u, f_p = self.features(inp)
-        f_cat1 = torch.cat([f_cog, f_p] if f_u is None else [f_cog, f_u, f_p], dim=1)
+        parts = [f_cog, f_p] if f_u is None else [f_cog, f_u, f_p]
+        if self.f_pano is not None:
+            if inp.panorama is None:
+                raise ValueError(f"model {self.config.name!r} reads the uncertainty panorama, but inp.panorama is None")
+            pano = torch.log1p(inp.panorama.clamp_min(0.0) / self.config.uncertainty_scale)
+            parts.append(self.f_pano(pano.reshape(pano.shape[0], -1).to(f_p.dtype)))
+        f_cat1 = torch.cat(parts, dim=1)
         aux = None if self.aux_head is None else wrap_angle_t(self.aux_head(f_cog)[:, 0])
         return self.fusion.fused(f_cat1), aux
 
