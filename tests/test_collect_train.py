@@ -321,8 +321,9 @@ def test_resumed_training_refuses_other_settings(demos, tmp_path):
     assert train(cfg.replace(select_workers=2), resume=True, progress=False).steps_this_call == 0
 
 
-@pytest.mark.parametrize("model, extra", [("nav_a3c", {}), ("nue", {"map_dropout": 0.5, "buffer_episodes": 3})],
-                         ids=["sequences", "buffers+map-dropout"])
+@pytest.mark.parametrize("model, extra", [("nav_a3c", {}), ("nue", {"map_dropout": 0.5, "buffer_episodes": 3}),
+                                          ("nue_gru", {"map_dropout": 0.5})],
+                         ids=["sequences", "buffers+map-dropout", "gru-sequences+map-dropout"])
 def test_resume_continues_from_the_saved_step_and_matches(demos, tmp_path, model, extra):
     """Killed after the checkpoint at step 6 and resumed: bit-identical weights and optimiser state (for the
     reactive model the kill falls inside a shuffle buffer, so the sampler's position must be restored)."""
@@ -534,3 +535,32 @@ def test_bf16_training_step_is_unchanged_by_casting_the_images_first(name, monke
     (l1, g1), (l2, g2) = results
     assert torch.equal(l1, l2) and g1.keys() == g2.keys() and len(g1) > 10
     assert [n for n in g1 if not torch.equal(g1[n], g2[n])] == []
+
+
+def test_panorama_model_collects_trains_and_acts(houses, tmp_path):
+    """A memory preset with a panorama stores it per step; ``nue_pano`` trains on it and its agent acts in the loop
+    with the checkpoint's memory; a model that reads a panorama refuses a collection without one."""
+    from nue.errors import DataError
+    from nue.policy.config import get_model_config
+    from nue.rollout import run_episode
+    from nue.sim.env import make_env
+    from nue.train.bc import TrainConfig, train
+    from nue.train.checkpoint import load_agent
+
+    pano_mem = TINY.replace(name="tiny_pano", panorama_headings=8)
+    out = tmp_path / "demos"
+    collect(out, CollectConfig(scene_dirs=(str(houses[0]),), episodes_per_bin=1, heldout_per_bin=0, memory=pano_mem),
+            tmp_path / "scenes", workers=1, progress=False)
+    ep = DemoSet(out, "train").episodes[0]
+    assert ep["panorama"].shape == (len(ep["action"]), 8, 6, 8) and float(np.asarray(ep["panorama"]).max()) > 0
+    res = train(TrainConfig(data=str(out), out=str(tmp_path / "run"), model="nue_pano", steps=3, batch_size=4,
+                            warmup=1, eval_every=3), progress=False)
+    env = make_env(houses[0], "paper", max_steps=6)
+    agent, memory = load_agent(res.last, env.task)
+    rec = run_episode(env, agent, memory=memory, seed=0)
+    assert rec.steps == 6 and agent.last_input.panorama.shape == (1, 8, 6, 8)
+    plain = tmp_path / "plain"
+    collect(plain, CollectConfig(scene_dirs=(str(houses[0]),), episodes_per_bin=1, heldout_per_bin=0, memory=TINY),
+            tmp_path / "scenes", workers=1, progress=False)
+    with pytest.raises(DataError, match="panorama"):
+        DemoSet(plain, "train").check_layout(get_model_config("nue_pano"))

@@ -60,6 +60,7 @@ def random_input(config: ModelConfig, batch: int, gen: torch.Generator, time: in
         goal=r(3, *config.goal_size),
         i_u=r(1, h, w) * 10.0 if config.uses_i_u else None,
         i_cog=torch.randn(*lead, config.cog_channels, h, w, generator=gen) if config.uses_i_cog else None,
+        panorama=r(*config.panorama_shape) if config.uses_panorama else None,
     )
 
 
@@ -278,7 +279,8 @@ def test_output_shapes(name, map_size):
         assert out.aux_angle is None and seq.aux_angle is None
     assert torch.isfinite(out.logits).all()
     if cfg.recurrent:
-        assert [s.shape for s in out.state] == [(2, cfg.lstm_dim)] * 2
+        expected = [(2, cfg.gru_dim)] if cfg.gru_dim else [(2, cfg.lstm_dim)] * 2
+        assert [s.shape for s in out.state] == expected and [s.shape for s in seq.state] == expected
     else:
         assert out.state is None and seq.state is None
 
@@ -553,3 +555,60 @@ def test_nue_overfits_32_samples():
     accuracy = (out.logits.argmax(-1) == labels).float().mean().item()
     assert accuracy >= 0.95
     assert angle_l1_loss(out.aux_angle, angles).item() < 0.5  # random guessing: pi / 2
+
+
+def test_nue_gru_state_carries_information_and_resets():
+    """NUE with a GRU after the fusion: a different past changes later logits, a reset erases it, step by step equals
+    forward_sequence; without the GRU (``nue``) the config dict and modules are as before."""
+    cfg = get_model_config("nue_gru").replace(map_height=12, map_width=16, frame_height=24, frame_width=32)
+    assert cfg.recurrent and not get_model_config("nue").recurrent
+    assert "gru_dim" not in get_model_config("nue").to_dict() and ModelConfig.from_dict(cfg.to_dict()) == cfg
+    torch.manual_seed(0)
+    model = build_model(cfg).eval()
+    assert model.gru is not None and build_model(get_model_config("nue")).gru is None
+    gen = torch.Generator().manual_seed(4)
+    seq_a = random_input(cfg, 1, gen, time=3)
+    seq_b = PolicyInput.cat([PolicyInput.stack([random_input(cfg, 1, gen)]), seq_a.index(slice(1, None))])
+    with torch.no_grad():
+        out_a = model.forward_sequence(seq_a, model.initial_state(1))
+        out_b = model.forward_sequence(seq_b, model.initial_state(1))
+        assert not torch.allclose(out_a.logits[1:], out_b.logits[1:], atol=1e-6)
+        reset = torch.tensor([[False], [True], [False]])
+        ra = model.forward_sequence(seq_a, model.initial_state(1), reset)
+        rb = model.forward_sequence(seq_b, model.initial_state(1), reset)
+        assert torch.allclose(ra.logits[1:], rb.logits[1:], atol=1e-6)
+        state = model.initial_state(1)
+        for t in range(3):
+            out = model(seq_a.step(t), state)
+            assert torch.allclose(out.logits, out_a.logits[t], atol=1e-5)
+            assert torch.allclose(out.aux_angle, out_a.aux_angle[t], atol=1e-6)
+            state = out.state
+    with pytest.raises(ConfigError):
+        get_model_config("fr").replace(gru_dim=8)
+
+
+def test_nue_pano_reads_the_panorama():
+    """The panorama branch: the logits depend on the panorama (and only models with ``panorama_dim`` read it);
+    prepare_input passes it through and refuses a missing or misshapen one."""
+    cfg = get_model_config("nue_pano").replace(map_height=12, map_width=16, frame_height=24, frame_width=32)
+    assert cfg.uses_panorama and not get_model_config("nue").uses_panorama
+    assert "panorama_dim" not in get_model_config("nue").to_dict() and ModelConfig.from_dict(cfg.to_dict()) == cfg
+    torch.manual_seed(0)
+    model = build_model(cfg).eval()
+    gen = torch.Generator().manual_seed(2)
+    inp = random_input(cfg, 2, gen)
+    other = PolicyInput(inp.rgbd, inp.goal, inp.i_u, inp.i_cog, inp.panorama.flip(1))
+    with torch.no_grad():
+        assert not torch.allclose(model(inp).logits, model(other).logits)
+        with pytest.raises(ValueError, match="panorama"):
+            model(PolicyInput(inp.rgbd, inp.goal, inp.i_u, inp.i_cog, None))
+    rgb, depth = np.zeros((180, 240, 3), np.uint8), np.ones((180, 240), np.float32)
+    pano = np.random.default_rng(0).random((8, 6, 8)).astype(np.float32)
+    got = prepare_input(rgb, depth, rgb, np.ones((45, 60)), np.zeros((64, 45, 60)), cfg.replace(map_height=45, map_width=60),
+                        panorama=pano)
+    assert got.panorama.shape == (1, 8, 6, 8) and torch.allclose(got.panorama[0], torch.from_numpy(pano))
+    with pytest.raises(ValueError, match="panorama"):
+        prepare_input(rgb, depth, rgb, np.ones((45, 60)), np.zeros((64, 45, 60)), cfg.replace(map_height=45, map_width=60))
+    with pytest.raises(ValueError, match="panorama"):
+        prepare_input(rgb, depth, rgb, np.ones((45, 60)), np.zeros((64, 45, 60)), cfg.replace(map_height=45, map_width=60),
+                      panorama=pano[:, :3])

@@ -105,7 +105,8 @@ class PolicyAgent:
         i_u = getattr(maps, "i_u", None) if maps is not None else None
         i_cog = getattr(maps, "i_cog", None) if maps is not None else None
         return prepare_input(obs["rgb"], obs["depth"], obs["goal"], i_u, i_cog, self.config, device=self.device,
-                             goal_input=self._goal_input(obs["goal"]))
+                             goal_input=self._goal_input(obs["goal"]),
+                             panorama=getattr(maps, "panorama", None) if maps is not None else None)
 
     def _goal_input(self, goal) -> torch.Tensor | None:
         """The prepared goal, kept while the photo stays the same (it does for a whole episode)."""

@@ -102,6 +102,14 @@ class ModelConfig:
     """Hidden width of the 2-layer auxiliary angle head."""
     lstm_dim: int = 256
     """Nav-A3C only: LSTM hidden size."""
+    panorama_dim: int = 0
+    """NUE only: length of the vector f_pano = MLP(log1p(panorama / uncertainty_scale)) of the memory's I_u panorama
+    (``MemoryMaps.panorama``, memory presets with ``panorama_headings``), joined to f_cat1 (0 = no panorama)."""
+    panorama_shape: tuple[int, int, int] = (8, 6, 8)
+    """(headings, height, width) of the panorama the model reads (the memory preset's; used with ``panorama_dim``)."""
+    gru_dim: int = 0
+    """NUE only: hidden size of a GRU between the fusion (f_cat2) and the action head, carrying a state across
+    steps (0 = none, the paper's reactive fusion)."""
     negative_slope: float = 0.01
     """Slope of every LeakyReLU."""
 
@@ -122,6 +130,10 @@ class ModelConfig:
             raise ConfigError(where, "each encoder needs at least one residual block")
         if self.cbam_kernel % 2 != 1:
             raise ConfigError(where, f"cbam_kernel must be odd, got {self.cbam_kernel}")
+        if self.panorama_dim < 0 or (self.panorama_dim and self.kind != "nue") or min(self.panorama_shape) < 1:
+            raise ConfigError(where, f"panorama_dim must be >= 0 and applies to kind 'nue' only, got {self.panorama_dim}")
+        if self.gru_dim < 0 or (self.gru_dim and self.kind != "nue"):
+            raise ConfigError(where, f"gru_dim must be >= 0 and applies to kind 'nue' only, got {self.gru_dim}")
         if self.max_depth <= 0 or self.uncertainty_scale <= 0:
             raise ConfigError(where, "max_depth and uncertainty_scale must be positive")
 
@@ -130,6 +142,11 @@ class ModelConfig:
     def uses_i_u(self) -> bool:
         """The model reads the uncertainty map I_u (so the memory must render it)."""
         return self.kind == "nue" and self.use_uncertainty
+
+    @property
+    def uses_panorama(self) -> bool:
+        """The model reads the memory's I_u panorama (so the memory preset must render one)."""
+        return self.kind == "nue" and self.panorama_dim > 0
 
     @property
     def uses_i_cog(self) -> bool:
@@ -159,8 +176,8 @@ class ModelConfig:
 
     @property
     def recurrent(self) -> bool:
-        """The model carries a state across steps (Nav-A3C)."""
-        return self.kind == "nav_a3c"
+        """The model carries a state across steps (Nav-A3C, NUE with a GRU)."""
+        return self.kind == "nav_a3c" or self.gru_dim > 0
 
     # --- derived configs and serialisation ------------------------------------------------------
     def for_task(self, task: TaskConfig) -> "ModelConfig":
@@ -172,8 +189,14 @@ class ModelConfig:
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain-data form for checkpoints and JSON (tuples become lists)."""
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+        """Plain-data form for checkpoints and JSON (tuples become lists). ``gru_dim`` and the panorama's fields are
+        written only when set, so configs from before they existed keep their exact dict."""
+        d = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+        if not d["gru_dim"]:
+            del d["gru_dim"]
+        if not d["panorama_dim"]:  # likewise the panorama's fields
+            del d["panorama_dim"], d["panorama_shape"]
+        return d
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "ModelConfig":
@@ -192,6 +215,9 @@ _NUE = ModelConfig(goal_in_perception=True)
 MODEL_PRESETS: dict[str, ModelConfig] = {
     "nue": _NUE,
     "nue_paper": _NUE.replace(name="nue_paper", goal_in_perception=False),
+    "nue_gru": _NUE.replace(name="nue_gru", gru_dim=256),
+    "nue_pano": _NUE.replace(name="nue_pano", panorama_dim=32),
+    "nue_pano_gru": _NUE.replace(name="nue_pano_gru", panorama_dim=32, gru_dim=256),
     "abl_none": _NUE.replace(name="abl_none", use_uncertainty=False, use_aux=False, use_cbam=False),
     "abl_fu": _NUE.replace(name="abl_fu", use_uncertainty=True, use_aux=False, use_cbam=False),
     "abl_at_cbam": _NUE.replace(name="abl_at_cbam", use_uncertainty=False, use_aux=True, use_cbam=True),

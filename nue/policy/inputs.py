@@ -35,12 +35,15 @@ class PolicyInput:
     ``goal``: (B, 3, h_g, w_g) float in [0, 1] (h_g, w_g = ``config.goal_size``).
     ``i_u``: (B, 1, h, w) float >= 0, raw rendered variance; None for models without f_u.
     ``i_cog``: (B, 64, h, w) float, rendered NeRF features; None for the baselines.
+    ``panorama``: (B, K, hp, wp) float >= 0, the memory's raw I_u of K views around the robot; None unless the model
+    reads it (``ModelConfig.uses_panorama``).
     """
 
     rgbd: Tensor
     goal: Tensor
     i_u: Tensor | None = None
     i_cog: Tensor | None = None
+    panorama: Tensor | None = None
 
     def _map(self, fn) -> "PolicyInput":
         return PolicyInput(**{f.name: (None if (v := getattr(self, f.name)) is None else fn(v))
@@ -159,6 +162,7 @@ def prepare_input(
     device: torch.device | str | None = None,
     *,
     goal_input: Tensor | None = None,
+    panorama=None,
 ) -> PolicyInput:
     """Raw observation + goal + NeRF maps -> a normalised, resized :class:`PolicyInput`.
 
@@ -168,7 +172,8 @@ def prepare_input(
     Batched: the same with a leading B (``rgb`` (B, H, W, 3) marks the call as batched).
     numpy arrays or torch tensors. Maps the config does not use may be None (and are dropped
     if given); maps it uses are required. ``goal_input``: ``prepare_goal(goal, ...)`` computed earlier (the
-    goal photo stays the same for a whole episode); ``goal`` is then not read.
+    goal photo stays the same for a whole episode); ``goal`` is then not read. ``panorama``: the memory's I_u panorama
+    (K, hp, wp) (or (B, K, hp, wp)), required by models that read it, passed through raw.
     """
     batched = np.ndim(rgb) == 4 if not isinstance(rgb, Tensor) else rgb.ndim == 4
     rgb_t = _image(rgb, batched, device, "rgb")
@@ -198,7 +203,15 @@ def prepare_input(
         if i_cog is None:
             raise ValueError(f"model {config.name!r} reads the feature map I_cog, but i_cog is None")
         cog = resize_area(_map_tensor(i_cog, batched, config.cog_channels, device, "i_cog"), config.map_size)
-    for name, m in (("i_u", u), ("i_cog", cog)):
+    pano = None
+    if config.uses_panorama:
+        if panorama is None:
+            raise ValueError(f"model {config.name!r} reads the uncertainty panorama, but panorama is None (a memory "
+                             "preset with panorama_headings, e.g. fast_pano)")
+        pano = _map_tensor(panorama, batched, config.panorama_shape[0], device, "panorama")
+        if tuple(pano.shape[-2:]) != tuple(config.panorama_shape[1:]):
+            raise ValueError(f"panorama: expected views of {tuple(config.panorama_shape[1:])}, got {tuple(pano.shape[-2:])}")
+    for name, m in (("i_u", u), ("i_cog", cog), ("panorama", pano)):
         if m is not None and m.shape[0] != b:
             raise ValueError(f"{name}: batch {m.shape[0]} does not match rgb batch {b}")
-    return PolicyInput(rgbd=rgbd, goal=goal_t, i_u=u, i_cog=cog)
+    return PolicyInput(rgbd=rgbd, goal=goal_t, i_u=u, i_cog=cog, panorama=pano)

@@ -9,6 +9,8 @@ perception f_p, and attention-weighted fusion into action logits (eqs. 8-10, 13-
             [or of [rgbd, goal] at frame size with ``goal_in_perception``, as FR's first layer]
     f_cat1 = [f_cog, f_u, f_p];  w = sigmoid(MLP(f_cat1))
     f_cat2 = MLP(w * f_cat1);    logits = MLP(f_cat2)                    eqs. 13-14
+    [with ``panorama_dim``: f_pano = MLP(flatten(log1p(panorama / s))) joins f_cat1]
+    [with ``gru_dim``: h_t = GRU(f_cat2, h_{t-1}); logits = MLP(h_t)]
     aux_angle = wrap(MLP_2layer(f_cog))
 
 Switches: ``use_uncertainty=False`` drops f_u (f_cat1 = [f_cog, f_p]), ``use_aux=False`` drops the
@@ -40,14 +42,19 @@ class FusionHead(nn.Module):
         s = config.negative_slope
         self.gate = mlp([in_dim, config.gate_hidden, in_dim], s, final_activation=False)
         self.fuse = mlp([in_dim, config.fusion_dim], s)
-        self.policy = mlp([config.fusion_dim, config.head_hidden, config.num_actions], s, final_activation=False)
+        head_in = config.gru_dim or config.fusion_dim
+        self.policy = mlp([head_in, config.head_hidden, config.num_actions], s, final_activation=False)
 
     def weights(self, f_cat1: Tensor) -> Tensor:
         """The attention weights w (B, in_dim) in (0, 1)."""
         return torch.sigmoid(self.gate(f_cat1))
 
+    def fused(self, f_cat1: Tensor) -> Tensor:
+        """f_cat2 = MLP(w * f_cat1), (B, fusion_dim)."""
+        return self.fuse(self.weights(f_cat1) * f_cat1)
+
     def forward(self, f_cat1: Tensor) -> Tensor:
-        return self.policy(self.fuse(self.weights(f_cat1) * f_cat1))
+        return self.policy(self.fused(f_cat1))
 
 
 class NUEPolicy(PolicyModel):
@@ -69,8 +76,11 @@ class NUEPolicy(PolicyModel):
         self.f_cog = ConvBranch(c.cog_channels + 3, c.cognition_channels, c.map_grid, c.branch_dim, **cbam)
         self.f_p = ConvBranch(7 if c.goal_in_perception else 4, c.perception_channels, c.perception_grid, c.perception_dim, negative_slope=s)
         self.aux_head = mlp([c.branch_dim, c.aux_hidden, 1], s, final_activation=False) if c.use_aux else None
-        fused = c.branch_dim * (2 if c.use_uncertainty else 1) + c.perception_dim
+        k, hp, wp = c.panorama_shape
+        self.f_pano = mlp([k * hp * wp, 2 * c.panorama_dim, c.panorama_dim], s) if c.panorama_dim else None
+        fused = c.branch_dim * (2 if c.use_uncertainty else 1) + c.perception_dim + c.panorama_dim
         self.fusion = FusionHead(fused, config)
+        self.gru = nn.GRUCell(c.fusion_dim, c.gru_dim) if c.gru_dim else None
 
     def features(self, inp: PolicyInput) -> tuple[Tensor, Tensor | None, Tensor]:
         """The branch vectors ``(f_cog (B, 64), f_u (B, 64) | None, f_p (B, 256))``."""
@@ -88,9 +98,53 @@ class NUEPolicy(PolicyModel):
         frame = torch.cat([inp.rgbd, inp.goal.to(inp.rgbd.dtype)], dim=1) if self.config.goal_in_perception else inp.rgbd
         return f_cog, f_u, self.f_p(frame)
 
-    def forward(self, inp: PolicyInput, state: State = None, reset_mask: Tensor | None = None) -> PolicyOutput:
+    def _fused(self, inp: PolicyInput) -> tuple[Tensor, Tensor | None]:
+        """(f_cat2 (B, fusion_dim), aux angle (B,) | None)."""
         f_cog, f_u, f_p = self.features(inp)
-        f_cat1 = torch.cat([f_cog, f_p] if f_u is None else [f_cog, f_u, f_p], dim=1)
-        logits = self.fusion(f_cat1)
+        parts = [f_cog, f_p] if f_u is None else [f_cog, f_u, f_p]
+        if self.f_pano is not None:
+            if inp.panorama is None:
+                raise ValueError(f"model {self.config.name!r} reads the uncertainty panorama, but inp.panorama is None")
+            pano = torch.log1p(inp.panorama.clamp_min(0.0) / self.config.uncertainty_scale)
+            parts.append(self.f_pano(pano.reshape(pano.shape[0], -1).to(f_p.dtype)))
+        f_cat1 = torch.cat(parts, dim=1)
         aux = None if self.aux_head is None else wrap_angle_t(self.aux_head(f_cog)[:, 0])
-        return PolicyOutput(logits, aux, None)
+        return self.fusion.fused(f_cat1), aux
+
+    def initial_state(self, batch_size: int, device: torch.device | str | None = None) -> State:
+        if self.gru is None:
+            return None
+        if device is None:
+            device = next(self.parameters()).device
+        return (torch.zeros(batch_size, self.config.gru_dim, device=device),)
+
+    def _step(self, x: Tensor, state: State, reset_mask: Tensor | None) -> Tensor:
+        """h_t = GRU(x, h_{t-1}) (B, gru_dim), with h_{t-1} zeroed where ``reset_mask``."""
+        assert self.gru is not None
+        h = self.initial_state(x.shape[0], x.device)[0] if state is None else state[0]
+        if reset_mask is not None:
+            h = h * (~reset_mask.to(device=x.device, dtype=torch.bool)).to(h.dtype)[:, None]
+        return self.gru(x, h.to(x.dtype))
+
+    def forward(self, inp: PolicyInput, state: State = None, reset_mask: Tensor | None = None) -> PolicyOutput:
+        f_cat2, aux = self._fused(inp)
+        if self.gru is None:
+            return PolicyOutput(self.fusion.policy(f_cat2), aux, None)
+        h = self._step(f_cat2, state, reset_mask)
+        return PolicyOutput(self.fusion.policy(h), aux, (h,))
+
+    def forward_sequence(self, inp: PolicyInput, state: State = None, reset_mask: Tensor | None = None) -> PolicyOutput:
+        """Reactive: T folded into B. With a GRU: the branches and fusion for all T * B steps in one batch, then the
+        GRU step by step (its state zeroed where ``reset_mask`` (T, B))."""
+        if self.gru is None:
+            return super().forward_sequence(inp, state, reset_mask)
+        t, b = inp.rgbd.shape[:2]
+        f_cat2, aux = self._fused(inp.flatten_time())
+        x = f_cat2.reshape(t, b, -1)
+        hs = []
+        for i in range(t):
+            h = self._step(x[i], state, None if reset_mask is None else reset_mask[i])
+            state = (h,)
+            hs.append(h)
+        logits = self.fusion.policy(torch.cat(hs, dim=0))
+        return PolicyOutput(logits.reshape(t, b, -1), None if aux is None else aux.reshape(t, b), state)

@@ -344,7 +344,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> TrainResult:
             eps, steps_ = drawn
             batch = data.batch(eps[None], steps_[None], model_cfg, device)
             reset_t = torch.ones(batch.action.shape, dtype=torch.bool, device=device)
-            batch = swap_maps(batch, rng, cfg.map_dropout)
+        batch = swap_maps(batch, rng, cfg.map_dropout)  # a no-op (no draws) for models without maps
         loss, ce, aux = forward_loss(net, model, batch, reset_t, weights, cfg, device)
         if not torch.isfinite(loss):
             raise DataError(out_dir, f"the training loss is {loss.item()} at step {step + 1} (precision "

@@ -271,12 +271,17 @@ class DemoRecorder:
     """How the per-step arrays are stored (compact by default)."""
     steps: list = field(default_factory=list)
     goal: dict | None = None
+    panorama: list = field(default_factory=list)
+    """Per step the memory's I_u panorama (K, hp, wp) float16, if its preset renders one."""
 
     def __call__(self, s) -> None:
         cfg = self.config
         maps = s.maps
         inp = prepare_input(s.obs["rgb"], s.obs["depth"], s.obs["goal"], maps.i_u, maps.i_cog, cfg)
         label = getattr(self.agent, "last_expert_action", None)
+        panorama = getattr(maps, "panorama", None)
+        if panorama is not None:  # memory presets with a panorama: kept for the models that read it
+            self.panorama.append(panorama.detach().cpu().numpy().astype(np.float16))
         self.steps.append({
             "rgbd": self.storage.encode("rgbd", inp.rgbd.numpy()),
             "i_u": self.storage.encode("i_u", maps.i_u.detach().cpu().numpy()[None]),
@@ -302,6 +307,7 @@ class DemoRecorder:
             "executed": np.array([x["executed"] for x in st], dtype=np.int8),
             "goal_angle": np.array([x["goal_angle"] for x in st], dtype=np.float32),
             "pose": np.stack([x["pose"] for x in st]),
+            **({"panorama": np.stack(self.panorama)} if self.panorama else {}),
             **self.goal,
         }
 

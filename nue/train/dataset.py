@@ -106,6 +106,13 @@ class DemoSet:
         if want != have:
             raise DataError(manifest_path(self.root), f"data layout {have.to_dict()} does not fit model "
                                                       f"{model_cfg.name!r} ({want.to_dict()})")
+        if model_cfg.uses_panorama and self.episodes:
+            pano = self.episodes[0].get("panorama")
+            if pano is None or tuple(pano.shape[1:]) != tuple(model_cfg.panorama_shape):
+                raise DataError(self.files[0], f"model {model_cfg.name!r} reads an uncertainty panorama of "
+                                               f"{tuple(model_cfg.panorama_shape)}, the collection holds "
+                                               f"{'none' if pano is None else tuple(pano.shape[1:])} (collect with a "
+                                               "memory preset that renders it, e.g. --memory fast_pano)")
 
     def action_counts(self, num_actions: int) -> np.ndarray:
         counts = np.zeros(num_actions, dtype=np.int64)
@@ -136,6 +143,7 @@ class DemoSet:
             goal=shaped(gather(goal_key, per_episode=True)),
             i_u=shaped(gather("i_u")) if model_cfg.uses_i_u else None,
             i_cog=shaped(gather("i_cog")) if model_cfg.uses_i_cog else None,
+            panorama=shaped(gather("panorama")) if model_cfg.uses_panorama else None,
         )
         action, angle = gather("action", np.int64), gather("goal_angle")
         return Batch(inp, action.reshape(shape).to(device), angle.reshape(shape).to(device))
@@ -183,7 +191,7 @@ def swap_maps(batch, rng: np.random.Generator, p: float):
     def take(x):
         return None if x is None else x.reshape(n, *x.shape[-3:])[idx].reshape(x.shape)
 
-    inp = dataclasses.replace(inp, i_u=take(inp.i_u), i_cog=take(inp.i_cog))
+    inp = dataclasses.replace(inp, i_u=take(inp.i_u), i_cog=take(inp.i_cog), panorama=take(inp.panorama))
     return dataclasses.replace(batch, inp=inp)
 
 
