@@ -4,8 +4,8 @@
 * ``forward_sequence(inp (T, B, ...), state, reset_mask (T, B)) -> PolicyOutput((T, B, A), (T, B) | None, state)``
 * ``initial_state(batch_size, device)``; actions (B,) from the logits with :func:`choose_actions`
 
-``state`` is None for the reactive models and the LSTM's ``(h, c)``, each (B, lstm_dim), for
-Nav-A3C. ``reset_mask`` (bool) marks rows whose episode starts at that step: their state is
+``state`` is None for the reactive models, the LSTM's ``(h, c)``, each (B, lstm_dim), for
+Nav-A3C and the GRU's ``(h,)`` for NUE with ``gru_dim > 0``. ``reset_mask`` (bool) marks rows whose episode starts at that step: their state is
 replaced by the initial state before the step (reactive models ignore it).
 """
 
@@ -19,8 +19,8 @@ from torch import Tensor, nn
 from nue.policy.config import ModelConfig
 from nue.policy.inputs import PolicyInput
 
-State = tuple[Tensor, Tensor] | None
-"""Recurrent state: None (reactive models) or the LSTM's (h, c), each (B, hidden)."""
+State = tuple[Tensor, ...] | None
+"""Recurrent state: None (reactive models), the LSTM's (h, c) or the GRU's (h,), each (B, hidden)."""
 
 
 @dataclass
@@ -50,7 +50,7 @@ def angle_l1_loss(pred: Tensor, target: Tensor) -> Tensor:
 
 def detach_state(state: State) -> State:
     """Cut the gradient through a recurrent state (truncated BPTT between training chunks)."""
-    return None if state is None else tuple(s.detach() for s in state)  # type: ignore[return-value]
+    return None if state is None else tuple(s.detach() for s in state)
 
 
 def choose_actions(logits: Tensor, greedy: bool = False, generator: torch.Generator | None = None) -> Tensor:

@@ -121,7 +121,9 @@ class NUEPolicy(PolicyModel):
     def _step(self, x: Tensor, state: State, reset_mask: Tensor | None) -> Tensor:
         """h_t = GRU(x, h_{t-1}) (B, gru_dim), with h_{t-1} zeroed where ``reset_mask``."""
         assert self.gru is not None
-        h = self.initial_state(x.shape[0], x.device)[0] if state is None else state[0]
+        prev = self.initial_state(x.shape[0], x.device) if state is None else state
+        assert prev is not None
+        h = prev[0]
         if reset_mask is not None:
             h = h * (~reset_mask.to(device=x.device, dtype=torch.bool)).to(h.dtype)[:, None]
         return self.gru(x, h.to(x.dtype))
