@@ -42,11 +42,11 @@ from nue.evaluate.results_md import render_results_md
 from nue.evaluate.runner import EvalConfig, episode_files, run_eval
 from nue.jobs import fail_point
 from nue.output_lock import hold_output
+from nue.policy.checkpoint import git_commit
 from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, format_duration, format_estimate
 from nue.reproduce_train import TrainJob, collect_config, run_training, train_config, train_model  # noqa: F401
 from nue.scene.generator import SPLITS, ensure_house
 from nue.sim.episode_sets import get_episode_set
-from nue.train.checkpoint import git_commit
 from nue.train.collect import collect
 from nue.viz.coverage import write_coverage_figure
 

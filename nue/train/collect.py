@@ -27,6 +27,7 @@ from nue.nerf.config import MemoryConfig, get_memory
 from nue.nerf.online import OnlineNeRF
 from nue.output_lock import hold_output
 from nue.policy.agent import EXPERT_KINDS, ExpertAgent, MixedAgent, NoisyAgent
+from nue.policy.checkpoint import load_agent
 from nue.policy.config import get_model_config
 from nue.policy.inputs import prepare_input, resize_area
 from nue.rollout import run_episode
@@ -36,7 +37,6 @@ from nue.sim.env import make_env
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import Episode, load_episodes, save_episodes
 from nue.sim.task import get_task
-from nue.train.checkpoint import load_agent
 from nue.train.collect_job import AgentSpec, CollectJob
 from nue.train.compact import QuantizedArray, StepStorage
 from nue.train.episode_file import read_header, write_episode_file

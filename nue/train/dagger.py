@@ -21,7 +21,7 @@ from pathlib import Path
 
 from nue.errors import DataError
 from nue.output_lock import hold_output
-from nue.train.bc import TrainConfig, TrainResult, train
+from nue.train.bc import Selector, TrainConfig, TrainResult, train
 from nue.train.collect import CollectConfig, collect
 from nue.train.collect_job import AgentSpec
 from nue.train.manifest import CollectionManifest
@@ -49,15 +49,17 @@ class DaggerConfig:
 
 
 def run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: DaggerConfig, scenes_root,
-               workers: int = 1, ray_address: str | None = None, progress: bool = True) -> list[dict]:
+               workers: int = 1, ray_address: str | None = None, progress: bool = True,
+               select: Selector | None = None) -> list[dict]:
     """Run behaviour cloning then ``dagger.rounds`` DAgger rounds; returns one summary dict per round. The run
-    folder is held by this process meanwhile (:func:`~nue.output_lock.hold_output`)."""
+    folder is held by this process meanwhile (:func:`~nue.output_lock.hold_output`). ``select``: each round's
+    closed-loop selection, as :func:`~nue.train.bc.train` takes it."""
     with hold_output(train_cfg.out):
-        return _run_dagger(train_cfg, collect_cfg, dagger, scenes_root, workers, ray_address, progress)
+        return _run_dagger(train_cfg, collect_cfg, dagger, scenes_root, workers, ray_address, progress, select)
 
 
 def _run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: DaggerConfig, scenes_root, workers: int,
-                ray_address: str | None, progress: bool) -> list[dict]:
+                ray_address: str | None, progress: bool, select: Selector | None) -> list[dict]:
     out = Path(train_cfg.out)
     expert_data = train_cfg.data.split(",")[0]
     t0 = time.perf_counter()
@@ -65,7 +67,8 @@ def _run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: Dagg
         best = Path(dagger.start_from)
         rounds = [{"round": 0, "best": str(best), "data": train_cfg.data, "seconds": 0.0, "given": True}]
     else:
-        best = train(train_cfg.replace(out=str(out / "round_0")), resume=True, progress=progress).best
+        best = train(train_cfg.replace(out=str(out / "round_0")), resume=True, progress=progress,
+                     select=select).best
         rounds = [{"round": 0, "best": str(best), "data": train_cfg.data, "seconds": time.perf_counter() - t0}]
     roots = [train_cfg.data]
     for r in range(1, dagger.rounds + 1):
@@ -84,7 +87,8 @@ def _run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: Dagg
         budget = max(dagger.round_budget_s - rollout_s, 1.0) if dagger.round_budget_s > 0 else train_cfg.time_budget_s
         res: TrainResult = train(train_cfg.replace(data=",".join(roots), out=str(out / f"round_{r}"),
                                                    init_from=str(best), steps=dagger.steps_per_round, warmup=0,
-                                                   time_budget_s=budget), resume=True, progress=progress)
+                                                   time_budget_s=budget), resume=True, progress=progress,
+                                 select=select)
         best = res.best
         rounds.append({"round": r, "beta": beta, "best": str(best), "data": ",".join(roots), "collected": summary,
                        "rollout_seconds": rollout_s, "train_steps": res.step, "seconds": time.perf_counter() - t0})
