@@ -15,11 +15,11 @@ from nue.errors import ConfigError
 from nue.outputs import check_output_dir, check_output_file
 
 if TYPE_CHECKING:
+    from nue.selection import SelectConfig
     from nue.train.bc import TrainConfig
     from nue.train.collect import CollectConfig
     from nue.train.compact import StepStorage
     from nue.train.dagger import DaggerConfig
-    from nue.selection import SelectConfig
 
 
 def _bits(option: str, bits: int) -> None:
@@ -88,8 +88,8 @@ def collect_cmd(
     check_output_dir(out, "the collection folder")
     check_output_dir(scenes_root, "the scenes folder")
     summary = collect(out, cfg, scenes_root, workers=workers, ray_address=ray_address, storage=storage)
-    typer.echo(f"{summary['episodes']} episodes, {summary['steps']} steps, "
-               f"{summary['bytes_per_step'] / 1024:.0f} KiB/step, expert SR {100 * summary['expert_success_rate']:.1f}% -> {out}")
+    typer.echo(f"{summary.episodes} episodes, {summary.steps} steps, "
+               f"{summary.bytes_per_step / 1024:.0f} KiB/step, expert SR {100 * summary.expert_success_rate:.1f}% -> {out}")
 
 
 @config_command
@@ -123,8 +123,9 @@ def _run_dagger(cfg: TrainConfig, dagger: DaggerConfig, scene: list[Path], scene
                                                    manifest_path(expert_data))
         rounds = run_dagger(cfg, collect_cfg, dagger, scenes_root, workers=workers, ray_address=ray_address,
                             select=select_run)
-        (Path(cfg.out) / "dagger.json").write_text(json.dumps(rounds, indent=1, default=str) + "\n")
-    typer.echo(f"DAgger: {len(rounds) - 1} rounds; final checkpoint {rounds[-1]['best']}")
+        (Path(cfg.out) / "dagger.json").write_text(json.dumps([r.to_dict() for r in rounds], indent=1, default=str)
+                                                   + "\n")
+    typer.echo(f"DAgger: {len(rounds) - 1} rounds; final checkpoint {rounds[-1].best}")
 
 
 @config_command

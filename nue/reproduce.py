@@ -258,7 +258,7 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
             header(i, stage, f"demonstrations -> {folders.demos}")
             summary = collect(folders.demos, collect_config(recipe, device), folders.scenes_root, workers=workers,
                               ray_address=ray_address, progress=progress)
-            finish(stage, time.perf_counter() - t0, summary)
+            finish(stage, time.perf_counter() - t0, summary.to_dict())
         elif stage.startswith("eval/"):
             header(i, stage, f"-> {folders.records(stage)}")
             summary = _run_eval(recipe, folders, stage, workers, ray_address, device, progress)

@@ -74,7 +74,7 @@ def train_model(job: Job) -> dict:
     else:
         rounds = run_dagger(p.train, p.collect, p.dagger, p.scenes_root, workers=1, progress=p.progress,
                             select=select_run)
-        out = {"best": str(rounds[-1]["best"]), "rounds": rounds}
+        out = {"best": str(rounds[-1].best), "rounds": [r.to_dict() for r in rounds]}
     return {**out, "model": p.train.model, "seed": p.train.seed, "seconds": time.perf_counter() - t0}
 
 

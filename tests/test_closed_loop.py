@@ -13,13 +13,13 @@ import torch
 from nue.evaluate.runner import EvalConfig, run_eval
 from nue.policy.agent import ExpertAgent, NoisyAgent
 from nue.rollout import run_episode
+from nue.selection import CandidateScore, SelectConfig, pick_best, select_checkpoint
 from nue.sim.env import ImageNavEnv
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import save_episodes
 from nue.sim.record import EpisodeRecord, Trajectory
 from nue.train.collect import CollectConfig, collect
 from nue.train.dataset import Batch, DemoSet, swap_maps
-from nue.selection import CandidateScore, pick_best
 from nue.policy.inputs import PolicyInput
 
 from .conftest import BOX_ROOM
@@ -180,7 +180,6 @@ def test_closed_loop_selection_runs_snapshots_and_copies_the_winner(tmp_path, bo
     from nue.policy.config import get_model_config
     from nue.sim.task import get_task
     from nue.nerf.config import get_memory
-    from nue.selection import SelectConfig, select_checkpoint
 
     scene = tmp_path / "scenes" / "room"
     shutil.copytree(BOX_ROOM, scene)
