@@ -256,9 +256,9 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
             finish(stage, time.perf_counter() - t0, {"houses": [f"{s}_{k:02d}" for s, k in houses]})
         elif stage == "collect":
             header(i, stage, f"demonstrations -> {folders.demos}")
-            summary = collect(folders.demos, collect_config(recipe, device), folders.scenes_root, workers=workers,
-                              ray_address=ray_address, progress=progress)
-            finish(stage, time.perf_counter() - t0, summary.to_dict())
+            collected = collect(folders.demos, collect_config(recipe, device), folders.scenes_root, workers=workers,
+                                ray_address=ray_address, progress=progress)
+            finish(stage, time.perf_counter() - t0, collected.to_dict())
         elif stage.startswith("eval/"):
             header(i, stage, f"-> {folders.records(stage)}")
             summary = _run_eval(recipe, folders, stage, workers, ray_address, device, progress)

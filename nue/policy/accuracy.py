@@ -16,8 +16,11 @@ from nue.policy.config import ModelConfig
 class Demonstrations(Protocol):
     """What :func:`held_out_accuracy` reads of a demonstration set (``nue.train.dataset.DemoSet`` is one)."""
 
-    n_episodes: int
-    lengths: np.ndarray
+    @property
+    def n_episodes(self) -> int: ...
+
+    @property
+    def lengths(self) -> np.ndarray: ...
 
     def batch(self, eps: np.ndarray, steps: np.ndarray, model_cfg: ModelConfig, device): ...
 

@@ -375,6 +375,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
     if world > 1:
         torch.distributed.barrier()
     if cfg.select == "closed_loop" and rank == 0:
+        assert select is not None  # train() refuses closed_loop without a selector
         select(out_dir, cfg, progress)
     if world > 1:
         torch.distributed.barrier()
