@@ -545,7 +545,7 @@ def test_panorama_model_collects_trains_and_acts(houses, tmp_path):
     from nue.rollout import run_episode
     from nue.sim.env import make_env
     from nue.train.bc import TrainConfig, train
-    from nue.train.checkpoint import load_agent
+    from nue.policy.checkpoint import load_agent
 
     pano_mem = TINY.replace(name="tiny_pano", panorama_headings=8)
     out = tmp_path / "demos"
