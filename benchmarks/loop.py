@@ -33,12 +33,12 @@ from _common import write_result  # noqa: E402
 from nue.evaluate.coverage import CoverageTracker  # noqa: E402
 from nue.jobs import episode_seed  # noqa: E402
 from nue.policy.agent import ExpertAgent  # noqa: E402
+from nue.policy.checkpoint import load_agent  # noqa: E402
 from nue.rollout import run_episode  # noqa: E402
 from nue.scene.generator import ensure_house  # noqa: E402
 from nue.scene.scene import Scene  # noqa: E402
 from nue.sim.env import make_env  # noqa: E402
 from nue.sim.episodes import load_episodes  # noqa: E402
-from nue.train.checkpoint import load_agent  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 PARTS = ("render_maps", "memory_step", "prepare_input", "policy_forward", "act", "env_step", "coverage")

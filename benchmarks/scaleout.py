@@ -62,8 +62,8 @@ def time_collect(tmp: Path, args, workers: int, ray_address: str | None) -> dict
     t = time.perf_counter()
     summary = collect(out, cfg, SCENES, workers=workers, ray_address=ray_address, progress=False)
     wall = time.perf_counter() - t
-    steps = int(summary["steps"])
-    return {"wall_s": wall, "steps": steps, "episodes": int(summary["episodes"]), "steps_per_s": steps / wall}
+    steps = summary.steps
+    return {"wall_s": wall, "steps": steps, "episodes": summary.episodes, "steps_per_s": steps / wall}
 
 
 def main() -> None:

@@ -3,7 +3,7 @@
 Reads the held-out part of a float16 (version 1) collection, re-encodes every episode with the compact
 :class:`~nue.train.compact.StepStorage` into a temporary folder (the collection itself is only read), and
 reports: bytes per step of both; the absolute error of I_cog / RGB / depth after quantisation (against the
-float16 values); held-out action accuracy of a checkpoint through ``nue.train.bc.evaluate`` on both, and
+float16 values); held-out action accuracy of a checkpoint through ``nue.policy.accuracy.held_out_accuracy`` on both, and
 the fraction of steps where its argmax action agrees; and the time to gather a training batch of each.
 
     python benchmarks/storage.py --data data/demos_explore --checkpoint results/v3/checkpoints/nue_v3.pt
@@ -32,9 +32,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import write_result  # noqa: E402
 
+from nue.policy.accuracy import held_out_accuracy  # noqa: E402
+from nue.policy.checkpoint import load_policy  # noqa: E402
 from nue.policy.config import get_model_config  # noqa: E402
-from nue.train.bc import evaluate  # noqa: E402
-from nue.train.checkpoint import load_policy  # noqa: E402
 from nue.train.compact import QuantizedArray, StepStorage  # noqa: E402
 from nue.train.dataset import DemoSet  # noqa: E402
 from nue.train.episode_file import read_header, write_episode_file  # noqa: E402
@@ -44,7 +44,7 @@ COMPACT = ("rgbd", "i_u", "i_cog")
 
 
 class ArgmaxRecorder:
-    """Stands in for a policy in ``evaluate``: forwards everything, keeps each ``forward_sequence``'s argmax."""
+    """Stands in for a policy in ``held_out_accuracy``: forwards everything, keeps each ``forward_sequence``'s argmax."""
 
     def __init__(self, model):
         self.model, self.actions = model, []
@@ -157,7 +157,7 @@ def main(argv=None) -> dict:
             for name, data in (("float16", old), ("compact", new)):
                 rec = ArgmaxRecorder(model)
                 t = time.perf_counter()
-                acc[name] = evaluate(rec, data, model.config, "cpu", max_episodes=args.max_episodes)
+                acc[name] = held_out_accuracy(rec, data, model.config, "cpu", max_episodes=args.max_episodes)
                 acc[name]["seconds"] = time.perf_counter() - t
                 acc[name]["pred"] = np.concatenate(rec.actions)
             n = min(old.n_episodes, args.max_episodes)

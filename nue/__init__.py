@@ -1,8 +1,8 @@
 """nue: image-goal visual navigation with an online, uncertainty-aware NeRF as the robot's memory.
 
-Data flow (and import direction): ``scene`` -> ``sim`` -> ``nerf`` -> ``policy`` ->
-``train`` / ``evaluate`` -> ``viz``, with ``cli`` on top. Importing ``nue`` registers the gymnasium
-environment ``nue/ImageNav-v0`` (:class:`nue.sim.env.ImageNavEnv`; keyword arguments ``scene``, ``task``,
+Data flow (and import direction): ``scene`` -> ``sim`` -> ``nerf`` -> ``policy`` -> ``train`` | ``evaluate``
+(side by side, neither imports the other) -> ``selection`` -> ``viz``, with ``cli`` on top. Importing ``nue``
+registers the gymnasium environment ``nue/ImageNav-v0`` (:class:`nue.sim.env.ImageNavEnv`; keyword arguments ``scene``, ``task``,
 ``episodes``, ...), so ``gymnasium.make("nue/ImageNav-v0", scene="data/scenes/val_00", task="paper")`` works.
 """
 

@@ -15,11 +15,11 @@ from nue.errors import ConfigError
 from nue.outputs import check_output_dir, check_output_file
 
 if TYPE_CHECKING:
+    from nue.selection import SelectConfig
     from nue.train.bc import TrainConfig
     from nue.train.collect import CollectConfig
     from nue.train.compact import StepStorage
     from nue.train.dagger import DaggerConfig
-    from nue.train.select import SelectConfig
 
 
 def _bits(option: str, bits: int) -> None:
@@ -60,7 +60,7 @@ DAGGER = ConfigOptions(
         help="Minutes per round, rollouts included; retraining gets what the rollouts leave (0 = no limit). "
              "Round 0 stops after this too."))
 SELECT = ConfigOptions(
-    "nue.train.select:SelectConfig", Opt("episodes_dir", path=True), Opt("scenes_root", path=True),
+    "nue.selection:SelectConfig", Opt("episodes_dir", path=True), Opt("scenes_root", path=True),
     Opt("candidates", check=A.positive), Opt("max_episodes", check=A.non_negative),
     Opt("max_steps", check=A.non_negative), Opt("workers", check=A.positive), Opt("device", check=A.device))
 
@@ -88,8 +88,8 @@ def collect_cmd(
     check_output_dir(out, "the collection folder")
     check_output_dir(scenes_root, "the scenes folder")
     summary = collect(out, cfg, scenes_root, workers=workers, ray_address=ray_address, storage=storage)
-    typer.echo(f"{summary['episodes']} episodes, {summary['steps']} steps, "
-               f"{summary['bytes_per_step'] / 1024:.0f} KiB/step, expert SR {100 * summary['expert_success_rate']:.1f}% -> {out}")
+    typer.echo(f"{summary.episodes} episodes, {summary.steps} steps, "
+               f"{summary.bytes_per_step / 1024:.0f} KiB/step, expert SR {100 * summary.expert_success_rate:.1f}% -> {out}")
 
 
 @config_command
@@ -112,18 +112,20 @@ def _run_dagger(cfg: TrainConfig, dagger: DaggerConfig, scene: list[Path], scene
     """Run DAgger on ``cfg.data``'s collection (its manifest says which episodes to revisit); write ``dagger.json``."""
     import json
 
+    from nue.output_lock import hold_output
+    from nue.selection import select_run
     from nue.train.dagger import collect_config_from_manifest, run_dagger
     from nue.train.manifest import manifest_path, read_manifest
-
-    from nue.output_lock import hold_output
 
     expert_data = cfg.data.split(",")[0]
     with hold_output(cfg.out):  # the run folder, until dagger.json is written
         collect_cfg = collect_config_from_manifest(read_manifest(expert_data), scene, cfg.device,
                                                    manifest_path(expert_data))
-        rounds = run_dagger(cfg, collect_cfg, dagger, scenes_root, workers=workers, ray_address=ray_address)
-        (Path(cfg.out) / "dagger.json").write_text(json.dumps(rounds, indent=1, default=str) + "\n")
-    typer.echo(f"DAgger: {len(rounds) - 1} rounds; final checkpoint {rounds[-1]['best']}")
+        rounds = run_dagger(cfg, collect_cfg, dagger, scenes_root, workers=workers, ray_address=ray_address,
+                            select=select_run)
+        (Path(cfg.out) / "dagger.json").write_text(json.dumps([r.to_dict() for r in rounds], indent=1, default=str)
+                                                   + "\n")
+    typer.echo(f"DAgger: {len(rounds) - 1} rounds; final checkpoint {rounds[-1].best}")
 
 
 @config_command
@@ -138,6 +140,7 @@ def train_cmd(
 ):
     """Behaviour cloning (+ auxiliary goal-angle loss) on collected demonstrations. (DAgger: `nue dagger`;
     the --dagger-* options here are deprecated and will be removed.)"""
+    from nue.selection import select_run
     from nue.train.bc import train
 
     A.positive("--workers", workers)
@@ -149,7 +152,7 @@ def train_cmd(
         _run_dagger(cfg, dataclasses.replace(dagger, round_budget_s=cfg.time_budget_s), scene, scenes_root, workers,
                     ray_address)
         return
-    res = train(cfg, resume=resume)
+    res = train(cfg, resume=resume, select=select_run)
     typer.echo(f"{res.step} steps ({res.steps_this_call} in this call, {res.elapsed_s / 60:.1f} min); "
                f"best checkpoint: {res.best}")
 
@@ -181,7 +184,7 @@ def select_cmd(
     cfg: SelectConfig = SELECT,
 ):
     """Closed-loop model selection: run a run's last snapshots on training-house episodes, copy the best to best.pt."""
-    from nue.train.select import select_checkpoint
+    from nue.selection import select_checkpoint
 
     check_output_file(run / "best.pt", "the selected checkpoint")
     ranked = select_checkpoint(run, cfg)

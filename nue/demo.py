@@ -20,6 +20,7 @@ from nue.evaluate.coverage import CoverageTracker
 from nue.evaluate.metrics import aggregate, format_table
 from nue.nerf.online import OnlineNeRF
 from nue.policy.agent import ExpertAgent
+from nue.policy.checkpoint import load_agent
 from nue.rollout import StepData, run_episode
 from nue.scene.generator import ensure_house
 from nue.scene.scene import Scene
@@ -27,7 +28,6 @@ from nue.sim.env import ImageNavEnv, make_env
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import Episode, load_episodes, save_episodes
 from nue.sim.task import get_task
-from nue.train.checkpoint import load_agent
 from nue.viz.figures import (fig6_uncertainty_timeline, fig7_goal_direction, fig8_gradcam, gradcam_uncertainty,
                              save_episode_gif, save_figure)
 from nue.viz.topdown import save_frames, save_topdown

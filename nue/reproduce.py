@@ -42,11 +42,11 @@ from nue.evaluate.results_md import render_results_md
 from nue.evaluate.runner import EvalConfig, episode_files, run_eval
 from nue.jobs import fail_point
 from nue.output_lock import hold_output
+from nue.policy.checkpoint import git_commit
 from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, format_duration, format_estimate
 from nue.reproduce_train import TrainJob, collect_config, run_training, train_config, train_model  # noqa: F401
 from nue.scene.generator import SPLITS, ensure_house
 from nue.sim.episode_sets import get_episode_set
-from nue.train.checkpoint import git_commit
 from nue.train.collect import collect
 from nue.viz.coverage import write_coverage_figure
 
@@ -256,9 +256,9 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
             finish(stage, time.perf_counter() - t0, {"houses": [f"{s}_{k:02d}" for s, k in houses]})
         elif stage == "collect":
             header(i, stage, f"demonstrations -> {folders.demos}")
-            summary = collect(folders.demos, collect_config(recipe, device), folders.scenes_root, workers=workers,
-                              ray_address=ray_address, progress=progress)
-            finish(stage, time.perf_counter() - t0, summary)
+            collected = collect(folders.demos, collect_config(recipe, device), folders.scenes_root, workers=workers,
+                                ray_address=ray_address, progress=progress)
+            finish(stage, time.perf_counter() - t0, collected.to_dict())
         elif stage.startswith("eval/"):
             header(i, stage, f"-> {folders.records(stage)}")
             summary = _run_eval(recipe, folders, stage, workers, ray_address, device, progress)

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Callable
 from nue.jobs import Job, run_jobs
 from nue.policy.config import get_model_config
 from nue.recipe import Recipe
+from nue.selection import select_run
 from nue.train.bc import TrainConfig, train
 from nue.train.collect import CollectConfig
 from nue.train.dagger import DaggerConfig, run_dagger
@@ -68,11 +69,12 @@ def train_model(job: Job) -> dict:
     p: TrainJob = job.payload
     t0 = time.perf_counter()
     if p.dagger is None:
-        res = train(p.train, resume=True, progress=p.progress)
+        res = train(p.train, resume=True, progress=p.progress, select=select_run)
         out = {"best": str(res.best), "steps": res.step, "train_seconds": res.elapsed_s}
     else:
-        rounds = run_dagger(p.train, p.collect, p.dagger, p.scenes_root, workers=1, progress=p.progress)
-        out = {"best": str(rounds[-1]["best"]), "rounds": rounds}
+        rounds = run_dagger(p.train, p.collect, p.dagger, p.scenes_root, workers=1, progress=p.progress,
+                            select=select_run)
+        out = {"best": str(rounds[-1].best), "rounds": [r.to_dict() for r in rounds]}
     return {**out, "model": p.train.model, "seed": p.train.seed, "seconds": time.perf_counter() - t0}
 
 

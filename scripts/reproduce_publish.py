@@ -117,7 +117,7 @@ def checkpoint_table(root: Path, run: Path, models: list[str]) -> str:
     from nue.evaluate.metrics import summarize
     from nue.evaluate.report import method_label, paired_differences
     from nue.sim.record import EpisodeRecord
-    from nue.train.checkpoint import load_policy
+    from nue.policy.checkpoint import load_policy
 
     keys = episode_keys(root / "episodes" / "val")
     recs = [EpisodeRecord.from_dict(r) for r in read_jsonl(run / "records" / "val252.jsonl")

@@ -192,9 +192,9 @@ def checkpoint(tmp_path_factory):
     """A tiny valid FR checkpoint for the paper task (untrained weights)."""
     from nue.nerf.config import get_memory
     from nue.policy import build_model
+    from nue.policy.checkpoint import policy_meta, save_checkpoint
     from nue.policy.config import get_model_config
     from nue.sim.task import get_task
-    from nue.train.checkpoint import policy_meta, save_checkpoint
 
     task = get_task("paper")
     cfg = get_model_config("fr").for_task(task)

@@ -13,13 +13,13 @@ import torch
 from nue.errors import DataError
 from nue.policy.agent import ExpertAgent, NoisyAgent
 from nue.rollout import run_episode
+from nue.selection import CandidateScore, SelectConfig, pick_best, select_checkpoint
 from nue.sim.env import ImageNavEnv
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import save_episodes
 from nue.sim.record import EpisodeRecord, Trajectory
 from nue.train.collect import CollectConfig, collect
 from nue.train.dataset import Batch, DemoSet, swap_maps
-from nue.train.select import CandidateScore, pick_best
 from nue.policy.inputs import PolicyInput
 
 from .conftest import BOX_ROOM
@@ -176,11 +176,10 @@ def test_closed_loop_selection_runs_snapshots_and_copies_the_winner(tmp_path, bo
     """Two "snapshots" of a run — the expert-like checkpoint is faked by two real tiny policies; the one with
     the higher SR on the selection episodes becomes best.pt."""
     from nue.policy import build_model
+    from nue.policy.checkpoint import policy_meta, save_checkpoint
     from nue.policy.config import get_model_config
     from nue.sim.task import get_task
-    from nue.train.checkpoint import policy_meta, save_checkpoint
     from nue.nerf.config import get_memory
-    from nue.train.select import SelectConfig, select_checkpoint
 
     scene = tmp_path / "scenes" / "room"
     shutil.copytree(BOX_ROOM, scene)
@@ -261,3 +260,14 @@ def test_both_experts_label_dagger_rollouts_under_noise(box_env, kind):
     assert rec.success
     assert all(a == b for a, b, _ in pairs)
     assert any(a != c for a, _, c in pairs)
+
+
+def test_training_for_closed_loop_selection_needs_the_selector(tmp_path):
+    """Training does not import the evaluation that selection runs: a closed-loop run without a selector
+    (``nue.selection.select_run``) is refused before anything is read or written."""
+    from nue.errors import ConfigError
+    from nue.train.bc import TrainConfig, train
+
+    with pytest.raises(ConfigError, match="select_run"):
+        train(TrainConfig(data=str(tmp_path / "none"), out=str(tmp_path / "run"), select="closed_loop"), progress=False)
+    assert not (tmp_path / "run").exists()

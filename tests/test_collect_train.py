@@ -197,9 +197,9 @@ def _fixed_batch_loss(model_cfg_name, state_dict, data_dir):
 @pytest.mark.parametrize("precision", ["fp32", "bf16"])
 def test_training_loss_falls(demos, tmp_path, precision):
     from nue.policy import build_model
+    from nue.policy.checkpoint import load_checkpoint
     from nue.policy.config import get_model_config
     from nue.train.bc import TrainConfig, train
-    from nue.train.checkpoint import load_checkpoint
 
     torch.manual_seed(0)
     init = build_model(get_model_config("nue")).state_dict()
@@ -250,8 +250,8 @@ def test_a_non_finite_loss_stops_training_with_one_line(demos, tmp_path):
 
 
 def test_auto_precision_is_recorded_resolved_in_the_checkpoint(demos, tmp_path):
+    from nue.policy.checkpoint import load_checkpoint
     from nue.train.bc import TrainConfig, resolve_precision, train
-    from nue.train.checkpoint import load_checkpoint
 
     res = train(TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=2, batch_size=4, warmup=1,
                             eval_every=2), progress=False)
@@ -261,7 +261,7 @@ def test_auto_precision_is_recorded_resolved_in_the_checkpoint(demos, tmp_path):
 
 
 def test_resume_mismatches_names_changed_settings_and_data():
-    from nue.train.checkpoint import resume_mismatches
+    from nue.policy.checkpoint import resume_mismatches
 
     stored = {"train_config": {"lr": 1e-3, "steps": 100, "out": "a", "precision": "fp32", "precision_resolved": "fp32",
                                "eval_houses": (0, 1), "old_field": 1}, "manifest_hash": "aaaa"}
@@ -280,9 +280,9 @@ def test_compiled_training_computes_what_eager_training_computes(demos, tmp_path
     """``compile=True`` (torch.compile, inductor) trains the same function: same batches, weights within float
     rounding of eager after 4 steps; and a run may switch it on resume (how, not what, is trained)."""
     from nue.policy import build_model
+    from nue.policy.checkpoint import load_checkpoint
     from nue.policy.config import get_model_config
     from nue.train.bc import TrainConfig, train
-    from nue.train.checkpoint import load_checkpoint
 
     cfg = TrainConfig(data=str(demos), out=str(tmp_path / "eager"), model="fr", steps=4, batch_size=8, warmup=1,
                       eval_every=2, precision="fp32")
@@ -328,8 +328,8 @@ def test_resume_continues_from_the_saved_step_and_matches(demos, tmp_path, model
     """Killed after the checkpoint at step 6 and resumed: bit-identical weights and optimiser state (for the
     reactive model the kill falls inside a shuffle buffer, so the sampler's position must be restored)."""
     from nue.jobs import InjectedFailure
+    from nue.policy.checkpoint import load_checkpoint
     from nue.train.bc import TrainConfig, train
-    from nue.train.checkpoint import load_checkpoint
 
     cfg = TrainConfig(data=str(demos), out=str(tmp_path / "a"), model=model, steps=12, batch_size=4, seq_len=4,
                       warmup=2, eval_every=6, **extra)
@@ -352,8 +352,8 @@ def test_resume_continues_from_the_saved_step_and_matches(demos, tmp_path, model
 
 
 def test_a_spent_time_budget_stays_spent_on_resume(demos, tmp_path):
+    from nue.policy.checkpoint import load_checkpoint
     from nue.train.bc import TrainConfig, train
-    from nue.train.checkpoint import load_checkpoint
 
     cfg = TrainConfig(data=str(demos), out=str(tmp_path / "run"), model="fr", steps=50, batch_size=4, warmup=2,
                       eval_every=25, time_budget_s=1e-6)
@@ -391,15 +391,15 @@ def test_ddp_two_processes_gloo(demos, tmp_path):
                           "-m", "nue.cli", "train", "--data", str(demos), "--out", str(tmp_path / "ddp"), "--steps", "4",
                           "--batch-size", "8", "--eval-every", "2"], capture_output=True, text=True, env=env, timeout=240)
     assert res.returncode == 0, res.stderr[-3000:]
-    from nue.train.checkpoint import load_checkpoint
+    from nue.policy.checkpoint import load_checkpoint
 
     assert load_checkpoint(tmp_path / "ddp" / "last.pt")["step"] == 4
 
 
 def test_checkpoint_embeds_presets_and_refuses_mismatches(demos, tmp_path):
+    from nue.policy.checkpoint import PolicyHeader, check_compatible, load_checkpoint, load_policy
     from nue.sim.task import get_task
     from nue.train.bc import TrainConfig, train
-    from nue.train.checkpoint import PolicyHeader, check_compatible, load_checkpoint, load_policy
     from nue.train.manifest import read_manifest
 
     res = train(TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=2, batch_size=4, eval_every=2), progress=False)
@@ -441,14 +441,14 @@ def test_dagger_round_collects_policy_rollouts_labelled_by_the_expert(demos, hou
         expert_steps = read_episode_file(demos / path.relative_to(dagger_dir))[1]["steps"]
         assert meta["steps"] <= MAX_FACTOR * expert_steps + 200  # policy capped at 1x, then the expert finishes
     assert mixed > 0  # some executed actions were the policy's, labelled with the expert's
-    from nue.train.checkpoint import load_checkpoint
+    from nue.policy.checkpoint import load_checkpoint
 
     assert load_checkpoint(tmp_path / "run" / "round_1" / "last.pt")["step"] == 2
 
 
 def test_dagger_from_a_given_checkpoint_counts_rollouts_against_the_round_budget(demos, houses, tmp_path):
+    from nue.policy.checkpoint import load_checkpoint
     from nue.train.bc import TrainConfig, train
-    from nue.train.checkpoint import load_checkpoint
 
     start = train(TrainConfig(data=str(demos), out=str(tmp_path / "bc"), steps=2, batch_size=4, eval_every=2),
                   progress=False).best
@@ -545,7 +545,7 @@ def test_panorama_model_collects_trains_and_acts(houses, tmp_path):
     from nue.rollout import run_episode
     from nue.sim.env import make_env
     from nue.train.bc import TrainConfig, train
-    from nue.train.checkpoint import load_agent
+    from nue.policy.checkpoint import load_agent
 
     pano_mem = TINY.replace(name="tiny_pano", panorama_headings=8)
     out = tmp_path / "demos"

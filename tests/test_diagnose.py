@@ -162,7 +162,7 @@ def probe_demos(tmp_path_factory):
 def model_demos(tmp_path_factory):
     """Full-size inputs (2 houses x 1 episode x 12 steps) and a NUE and an FR checkpoint (random weights)."""
     from nue.policy import build_model, get_model_config
-    from nue.train.checkpoint import save_checkpoint
+    from nue.policy.checkpoint import save_checkpoint
 
     tmp = tmp_path_factory.mktemp("model")
     root = _write_demos(tmp / "demos", 2, 1, 12, 64, np.random.default_rng(1))

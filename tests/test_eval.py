@@ -11,11 +11,11 @@ import torch
 from nue.jobs import FAIL_AFTER_ENV
 from nue.nerf.config import get_memory
 from nue.policy import build_model
+from nue.policy.checkpoint import policy_meta, save_checkpoint
 from nue.policy.config import get_model_config
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import save_episodes
 from nue.sim.task import get_task
-from nue.train.checkpoint import policy_meta, save_checkpoint
 
 from .conftest import FIXTURES, nue_here
 

@@ -16,6 +16,7 @@ from PIL import Image, ImageDraw
 
 from nue.nerf.config import get_memory
 from nue.policy import build_model
+from nue.policy.checkpoint import policy_meta, save_checkpoint
 from nue.policy.config import get_model_config
 from nue.policy.goal_pose import GoalMeasurement, GoalPoseEstimator, GoalTracker, TrackerConfig
 from nue.policy.last_mile import LastMileAgent, LastMileConfig
@@ -27,7 +28,6 @@ from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import Episode, save_episodes
 from nue.sim.renderer import Renderer
 from nue.sim.task import get_task
-from nue.train.checkpoint import policy_meta, save_checkpoint
 
 from .conftest import FIXTURES, nue_here
 

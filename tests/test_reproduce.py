@@ -22,11 +22,11 @@ from nue.errors import ConfigError
 from nue.evaluate.report import load_records
 from nue.evaluate.results_md import is_earlier_recipe
 from nue.evaluate.table import build_table, canonical_method, seed_run_name, split_seed
+from nue.policy.checkpoint import load_checkpoint, load_policy
 from nue.policy.config import ABLATION_PRESETS, get_model_config
 from nue.recipe import RECIPES, TABLE_I_MODELS, StepPlan, estimate, format_estimate, get_recipe, training_seed
 from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, plan_stages, reproduce, train_config
 from nue.reproduce_train import run_training
-from nue.train.checkpoint import load_checkpoint, load_policy
 
 EPISODES = Path(__file__).resolve().parents[1] / "episodes"
 pytestmark = pytest.mark.timeout(600)  # the quick run takes ~35 s of CPU; a loaded machine stretches the wall clock

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
+from nue.policy.checkpoint import PolicyHeader, load_checkpoint, load_policy
 from nue.policy.inputs import prepare_input
-from nue.train.checkpoint import PolicyHeader, load_checkpoint, load_policy
 
 REPO = Path(__file__).resolve().parents[1]
 ROOT = REPO / "checkpoints"

@@ -18,7 +18,7 @@ import torch
 
 from nue.cli import main
 from nue.nerf.config import get_memory
-from nue.train.checkpoint import load_checkpoint
+from nue.policy.checkpoint import load_checkpoint
 from nue.train.collect import CollectConfig, collect
 from nue.train.dataset import BufferSampler
 

@@ -18,9 +18,9 @@ import torch
 
 from nue.errors import CheckpointError, OutputInUseError
 from nue.output_lock import hold_output, lock_file
+from nue.policy.checkpoint import FORMAT, load_checkpoint, plain_data_problem, save_checkpoint
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import save_episodes
-from nue.train.checkpoint import FORMAT, load_checkpoint, plain_data_problem, save_checkpoint
 
 from .conftest import BOX_ROOM, FIXTURES, nue_here
 

@@ -45,8 +45,8 @@ def _checkpoint(path):
 
     from nue.nerf.config import get_memory
     from nue.policy import build_model
+    from nue.policy.checkpoint import policy_meta, save_checkpoint
     from nue.policy.config import get_model_config
-    from nue.train.checkpoint import policy_meta, save_checkpoint
 
     task = get_task("paper")
     cfg = get_model_config("nue").for_task(task)

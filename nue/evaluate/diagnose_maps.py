@@ -5,7 +5,7 @@ The maps I_u (1, h, w) and I_cog (64, h, w) are rendered before the memory learn
 so they can encode the previous action (after a left turn the newly seen left edge of I_u is high).
 Two tools:
 
-* **map controls** (:func:`map_controls`): a checkpoint's held-out action accuracy (``nue.train.bc.evaluate``)
+* **map controls** (:func:`map_controls`): a checkpoint's held-out action accuracy (:func:`nue.policy.accuracy.held_out_accuracy`)
   with intact maps, with both maps mirrored left-right, and with each step given the maps of another
   step of the same episode (>= ``min_gap`` steps away when possible); n/a for models without maps;
 * **previous-action probe** (:func:`previous_action_probe`): multinomial logistic regression from
@@ -33,8 +33,8 @@ from sklearn.preprocessing import StandardScaler
 
 from nue.errors import DataError
 from nue.evaluate.diagnose import fmt
-from nue.train.bc import evaluate
-from nue.train.checkpoint import load_policy
+from nue.policy.accuracy import held_out_accuracy
+from nue.policy.checkpoint import load_policy
 
 MAP_KEYS = ("i_u", "i_cog")
 
@@ -128,7 +128,7 @@ def map_controls(checkpoint, data, seed: int = 0, min_gap: int = 10, max_episode
     rng = np.random.default_rng(seed)
     acc, bal = {}, {}
     for cond in CONDITIONS:
-        res = evaluate(model, with_maps(data, cond, rng, min_gap), cfg, device, max_episodes=max_episodes)
+        res = held_out_accuracy(model, with_maps(data, cond, rng, min_gap), cfg, device, max_episodes=max_episodes)
         acc[cond], bal[cond] = res["action_accuracy"], res["balanced_accuracy"]
     return MapControls(str(checkpoint), cfg.name, True, n_eps, steps, acc, bal)
 

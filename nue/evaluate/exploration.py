@@ -60,8 +60,8 @@ class ExploreConfig:
 def plan_explore(methods: list[str], cfg: ExploreConfig) -> list[Job]:
     """One job per (start, method); keys ``<method>/<house>/<episode id>``."""
     from nue.evaluate.runner import EXPERT_METHODS, episode_files, first_per_bin, house_folder, parse_methods
+    from nue.policy.checkpoint import check_compatible
     from nue.scene.scene import Scene
-    from nue.train.checkpoint import check_compatible
 
     if cfg.steps <= 0:
         raise ConfigError("--steps", "must be positive")

@@ -30,6 +30,7 @@ from nue.nerf.config import get_memory
 from nue.nerf.online import OnlineNeRF
 from nue.output_lock import hold_output
 from nue.policy.agent import ExpertAgent, RandomAgent
+from nue.policy.checkpoint import PolicyHeader, check_compatible, load_agent, load_header
 from nue.policy.last_mile import SLING_PREFIX, LastMileAgent, LastMileConfig
 from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
@@ -39,7 +40,6 @@ from nue.sim.env import make_env
 from nue.sim.episodes import Episode, read_episodes
 from nue.sim.explorer import ExplorerConfig, ExploringExpert
 from nue.sim.task import get_task
-from nue.train.checkpoint import PolicyHeader, check_compatible, load_agent, load_header
 
 EXPERT_METHODS = {"expert": "geodesic", "expert-explore": "explore", "expert-uncertainty": "uncertainty", "random": "random"}
 """Method specs that run an expert (or the random walk) instead of a checkpoint -> ``ExpertAgent(kind=...)``

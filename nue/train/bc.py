@@ -18,6 +18,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -28,13 +29,13 @@ from nue.errors import CheckpointError, ConfigError, DataError
 from nue.jobs import fail_point
 from nue.output_lock import hold_output
 from nue.policy import build_model
-from nue.policy.base import PolicyOutput, angle_l1_loss, wrap_angle_t
+from nue.policy.accuracy import held_out_accuracy
+from nue.policy.base import PolicyOutput, angle_l1_loss
+from nue.policy.checkpoint import PolicyHeader, load_checkpoint, policy_meta, resume_mismatches, save_checkpoint
 from nue.policy.config import get_model_config
 from nue.sim.task import get_task
-from nue.train.checkpoint import PolicyHeader, load_checkpoint, policy_meta, resume_mismatches, save_checkpoint
 from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler, data_roots, swap_maps
 from nue.train.hardware import check_compile, resolve_precision
-from nue.train.select import SelectConfig, select_checkpoint
 
 
 @dataclass(frozen=True)
@@ -186,35 +187,6 @@ def bc_loss(out, batch, weights: torch.Tensor, aux_weight: float):
     return ce + aux_weight * aux, ce, aux
 
 
-@torch.no_grad()
-def evaluate(model, data: DemoSet, model_cfg, device, max_episodes: int = 200) -> dict[str, float]:
-    """Held-out action accuracy, balanced accuracy and goal-angle error (degrees), episode by episode."""
-    model.eval()
-    correct = total = 0
-    per_class = np.zeros((2, model_cfg.num_actions))
-    angle_err = []
-    for e in range(min(data.n_episodes, max_episodes)):
-        t = np.arange(data.lengths[e])
-        batch = data.batch(np.full((len(t), 1), e), t[:, None], model_cfg, device)
-        out = model.forward_sequence(batch.inp, model.initial_state(1, device),
-                                     torch.zeros(len(t), 1, dtype=torch.bool, device=device))
-        pred = out.logits.argmax(-1).reshape(-1).cpu().numpy()
-        truth = batch.action.reshape(-1).cpu().numpy()
-        correct += int((pred == truth).sum())
-        total += len(truth)
-        np.add.at(per_class[0], truth, pred == truth)
-        np.add.at(per_class[1], truth, 1)
-        if out.aux_angle is not None:
-            angle_err.append(wrap_angle_t(out.aux_angle.reshape(-1) - batch.goal_angle.reshape(-1)).abs().cpu().numpy())
-    model.train()
-    seen = per_class[1] > 0
-    res = {"action_accuracy": correct / max(total, 1),
-           "balanced_accuracy": float((per_class[0][seen] / per_class[1][seen]).mean()) if seen.any() else 0.0}
-    if angle_err:
-        res["angle_error_deg"] = float(np.degrees(np.concatenate(angle_err).mean()))
-    return res
-
-
 @dataclass
 class TrainResult:
     """Where a run left its checkpoints and how far it got."""
@@ -227,17 +199,28 @@ class TrainResult:
     elapsed_s: float
 
 
+Selector = Callable[[Path, TrainConfig, bool], object]
+"""Closed-loop selection of a finished run (``TrainConfig.select == "closed_loop"``), called by :func:`train` with
+(run folder, the run's config, progress) on rank 0 while the run folder is held: it runs the run's last snapshots
+on episodes and copies the winner to ``best.pt``. Running episodes belongs to evaluation, which training does not
+import; the selector to pass is :func:`nue.selection.select_run`."""
+
 FAIL_AT_ENV = "NUE_FAIL_AT_STEP"
 """Tests: raise InjectedFailure right after the checkpoint at this step (as if the job were killed)."""
 
 
-def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> TrainResult:
-    """Run (or resume from ``out/last.pt``) behaviour cloning; rank 0 holds the run folder (one writer per output)."""
+def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, select: Selector | None = None) -> TrainResult:
+    """Run (or resume from ``out/last.pt``) behaviour cloning; rank 0 holds the run folder (one writer per output).
+    With ``cfg.select == "closed_loop"``, ``select`` (:data:`Selector`) picks ``best.pt`` among the snapshots at the
+    end; :class:`ConfigError` if it is not given."""
+    if cfg.select == "closed_loop" and select is None:
+        raise ConfigError("train config", "select 'closed_loop' needs the closed-loop selector "
+                                          "(select=nue.selection.select_run)")
     with hold_output(cfg.out) if _dist()[0] == 0 else contextlib.nullcontext():
-        return _train(cfg, resume, progress)
+        return _train(cfg, resume, progress, select)
 
 
-def _train(cfg: TrainConfig, resume: bool, progress: bool) -> TrainResult:
+def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | None) -> TrainResult:
     rank, world = _dist()
     device = torch.device(cfg.device)
     out_dir = Path(cfg.out)
@@ -371,7 +354,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> TrainResult:
             samples_seen, t_window = 0, time.perf_counter()
         out_of_time = cfg.time_budget_s > 0 and elapsed >= cfg.time_budget_s
         if step % cfg.eval_every == 0 or step == cfg.steps or out_of_time:
-            metrics = evaluate(model, heldout, model_cfg, device) if heldout is not None and heldout.n_episodes else {}
+            metrics = held_out_accuracy(model, heldout, model_cfg, device) if heldout is not None and heldout.n_episodes else {}
             if writer is not None:
                 for k, v in metrics.items():
                     writer.add_scalar(f"metrics/{k}", v, step)
@@ -392,9 +375,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> TrainResult:
     if world > 1:
         torch.distributed.barrier()
     if cfg.select == "closed_loop" and rank == 0:
-        select_checkpoint(out_dir, SelectConfig(episodes_dir=cfg.select_episodes, scenes_root=cfg.select_scenes_root,
-                                                candidates=cfg.select_candidates, workers=cfg.select_workers,
-                                                device=cfg.device), progress=progress)
+        assert select is not None  # train() refuses closed_loop without a selector
+        select(out_dir, cfg, progress)
     if world > 1:
         torch.distributed.barrier()
     return TrainResult(out_dir / "best.pt", out_dir / "last.pt", step, step - first_step, elapsed)

@@ -27,6 +27,7 @@ from nue.nerf.config import MemoryConfig, get_memory
 from nue.nerf.online import OnlineNeRF
 from nue.output_lock import hold_output
 from nue.policy.agent import EXPERT_KINDS, ExpertAgent, MixedAgent, NoisyAgent
+from nue.policy.checkpoint import load_agent
 from nue.policy.config import get_model_config
 from nue.policy.inputs import prepare_input, resize_area
 from nue.rollout import run_episode
@@ -36,7 +37,6 @@ from nue.sim.env import make_env
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import Episode, load_episodes, save_episodes
 from nue.sim.task import get_task
-from nue.train.checkpoint import load_agent
 from nue.train.collect_job import AgentSpec, CollectJob
 from nue.train.compact import QuantizedArray, StepStorage
 from nue.train.episode_file import read_header, write_episode_file
@@ -168,8 +168,9 @@ def is_complete(path: Path) -> bool:
 
 
 def collect(out, cfg: CollectConfig, scenes_root, workers: int = 1, ray_address: str | None = None,
-            progress: bool = True, storage: StepStorage = StepStorage()) -> dict:
-    """Run (or resume) a collection into ``out``; returns a summary (episodes, steps, bytes per step).
+            progress: bool = True, storage: StepStorage = StepStorage()) -> CollectSummary:
+    """Run (or resume) a collection into ``out``; returns its :class:`CollectSummary` (episodes, steps, bytes per
+    step), also written to ``out/summary.json``.
 
     ``storage`` says how the step arrays are encoded (compact by default; all bits 0 = float16). It is not
     part of the manifest — the content is the same whatever the encoding, as after ``nue convert`` — but
@@ -207,7 +208,43 @@ def _write(out: Path, job: Job, result) -> None:
     write_episode_file(episode_path(out, job.key), arrays, meta)
 
 
-def summarize_collection(out: Path, jobs) -> dict:
+@dataclass(frozen=True)
+class CollectSummary:
+    """What a collection holds when :func:`collect` returns; ``summary.json`` in the folder is its :meth:`to_dict`."""
+
+    episodes: int
+    """Episode files of the collection."""
+    steps: int
+    """Steps over all of them."""
+    bytes: int
+    """Size of the episode files."""
+    bytes_per_step: float
+    expert_success_rate: float
+    """Share of the episodes that ended in success (the agent that drove them: expert, or DAgger's mix)."""
+    manifest_hash: str
+    """:meth:`~nue.train.manifest.CollectionManifest.hash` of the folder's manifest."""
+    storage: dict | None = None
+    """The step arrays' encoding as ``storage.json`` records it (``StepStorage`` fields), None if it has none."""
+
+    def to_dict(self) -> dict:
+        """The JSON form (``summary.json``, a reproduce stage's summary): ``storage`` only when recorded."""
+        d = {"episodes": self.episodes, "steps": self.steps, "bytes": self.bytes, "bytes_per_step": self.bytes_per_step,
+             "expert_success_rate": self.expert_success_rate, "manifest_hash": self.manifest_hash}
+        if self.storage is not None:
+            d["storage"] = dict(self.storage)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "CollectSummary":
+        """The summary of its JSON form."""
+        storage = d.get("storage")
+        return cls(episodes=d["episodes"], steps=d["steps"], bytes=d["bytes"], bytes_per_step=d["bytes_per_step"],
+                   expert_success_rate=d["expert_success_rate"], manifest_hash=d["manifest_hash"],
+                   storage=dict(storage) if storage is not None else None)
+
+
+def summarize_collection(out: Path, jobs) -> CollectSummary:
+    """Count the episode files of ``jobs`` in ``out`` and write ``out/summary.json``."""
     steps = total = 0
     succ = 0
     for job in jobs:
@@ -215,11 +252,11 @@ def summarize_collection(out: Path, jobs) -> dict:
         steps += header["meta"]["steps"]
         succ += bool(header["meta"]["success"])
         total += episode_path(out, job.key).stat().st_size
-    summary = {"episodes": len(jobs), "steps": steps, "bytes": total, "bytes_per_step": total / max(steps, 1),
-               "expert_success_rate": succ / max(len(jobs), 1), "manifest_hash": read_manifest(out).hash()}
-    if (out / "storage.json").is_file():
-        summary["storage"] = json.loads((out / "storage.json").read_text())
-    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    storage = json.loads((out / "storage.json").read_text()) if (out / "storage.json").is_file() else None
+    summary = CollectSummary(episodes=len(jobs), steps=steps, bytes=total, bytes_per_step=total / max(steps, 1),
+                             expert_success_rate=succ / max(len(jobs), 1), manifest_hash=read_manifest(out).hash(),
+                             storage=storage)
+    (out / "summary.json").write_text(json.dumps(summary.to_dict(), indent=1) + "\n")
     return summary
 
 

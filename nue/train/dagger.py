@@ -21,8 +21,8 @@ from pathlib import Path
 
 from nue.errors import DataError
 from nue.output_lock import hold_output
-from nue.train.bc import TrainConfig, TrainResult, train
-from nue.train.collect import CollectConfig, collect
+from nue.train.bc import Selector, TrainConfig, TrainResult, train
+from nue.train.collect import CollectConfig, CollectSummary, collect
 from nue.train.collect_job import AgentSpec
 from nue.train.manifest import CollectionManifest
 
@@ -48,25 +48,71 @@ class DaggerConfig:
     """Skip round 0 and start from this checkpoint (e.g. a finished behaviour-cloning run)."""
 
 
+@dataclass(frozen=True)
+class DaggerRound:
+    """One round of :func:`run_dagger`: its best checkpoint and what it trained on; ``dagger.json`` (and a reproduce
+    training stage's ``rounds``) holds the rounds' :meth:`to_dict`."""
+
+    round: int
+    """0 = behaviour cloning (or the given start), r >= 1 = DAgger round r."""
+    best: Path
+    """The round's best checkpoint (the given one for a round 0 started from a checkpoint)."""
+    data: str
+    """The collection folders it trained on, comma-separated (the expert's first, then each round's rollouts)."""
+    seconds: float
+    """Wall time of the round (rollouts included)."""
+    given: bool = False
+    """Round 0 was not trained: ``DaggerConfig.start_from`` gave its checkpoint."""
+    beta: float | None = None
+    """Rounds >= 1: probability that the expert's action is executed instead of the policy's."""
+    collected: CollectSummary | None = None
+    """Rounds >= 1: the collection of the round's rollouts."""
+    rollout_seconds: float | None = None
+    """Rounds >= 1: wall time of the rollouts (the first run's, kept across a resume)."""
+    train_steps: int | None = None
+    """Rounds >= 1: optimiser steps of the round's run, in total."""
+
+    def to_dict(self) -> dict:
+        """The JSON form: round 0 without the DAgger entries (``given`` only when true)."""
+        if self.round == 0:
+            d: dict = {"round": 0, "best": str(self.best), "data": self.data, "seconds": self.seconds}
+            return {**d, "given": True} if self.given else d
+        return {"round": self.round, "beta": self.beta, "best": str(self.best), "data": self.data,
+                "collected": self.collected.to_dict() if self.collected is not None else None,
+                "rollout_seconds": self.rollout_seconds, "train_steps": self.train_steps, "seconds": self.seconds}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "DaggerRound":
+        """The round of its JSON form."""
+        collected = d.get("collected")
+        return cls(round=d["round"], best=Path(d["best"]), data=d["data"], seconds=d["seconds"],
+                   given=bool(d.get("given", False)), beta=d.get("beta"),
+                   collected=CollectSummary.from_dict(collected) if collected is not None else None,
+                   rollout_seconds=d.get("rollout_seconds"), train_steps=d.get("train_steps"))
+
+
 def run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: DaggerConfig, scenes_root,
-               workers: int = 1, ray_address: str | None = None, progress: bool = True) -> list[dict]:
-    """Run behaviour cloning then ``dagger.rounds`` DAgger rounds; returns one summary dict per round. The run
-    folder is held by this process meanwhile (:func:`~nue.output_lock.hold_output`)."""
+               workers: int = 1, ray_address: str | None = None, progress: bool = True,
+               select: Selector | None = None) -> list[DaggerRound]:
+    """Run behaviour cloning then ``dagger.rounds`` DAgger rounds; returns each round's :class:`DaggerRound`. The run
+    folder is held by this process meanwhile (:func:`~nue.output_lock.hold_output`). ``select``: each round's
+    closed-loop selection, as :func:`~nue.train.bc.train` takes it."""
     with hold_output(train_cfg.out):
-        return _run_dagger(train_cfg, collect_cfg, dagger, scenes_root, workers, ray_address, progress)
+        return _run_dagger(train_cfg, collect_cfg, dagger, scenes_root, workers, ray_address, progress, select)
 
 
 def _run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: DaggerConfig, scenes_root, workers: int,
-                ray_address: str | None, progress: bool) -> list[dict]:
+                ray_address: str | None, progress: bool, select: Selector | None) -> list[DaggerRound]:
     out = Path(train_cfg.out)
     expert_data = train_cfg.data.split(",")[0]
     t0 = time.perf_counter()
     if dagger.start_from:
         best = Path(dagger.start_from)
-        rounds = [{"round": 0, "best": str(best), "data": train_cfg.data, "seconds": 0.0, "given": True}]
+        rounds = [DaggerRound(0, best, train_cfg.data, 0.0, given=True)]
     else:
-        best = train(train_cfg.replace(out=str(out / "round_0")), resume=True, progress=progress).best
-        rounds = [{"round": 0, "best": str(best), "data": train_cfg.data, "seconds": time.perf_counter() - t0}]
+        best = train(train_cfg.replace(out=str(out / "round_0")), resume=True, progress=progress,
+                     select=select).best
+        rounds = [DaggerRound(0, best, train_cfg.data, time.perf_counter() - t0)]
     roots = [train_cfg.data]
     for r in range(1, dagger.rounds + 1):
         t0 = time.perf_counter()
@@ -84,10 +130,11 @@ def _run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: Dagg
         budget = max(dagger.round_budget_s - rollout_s, 1.0) if dagger.round_budget_s > 0 else train_cfg.time_budget_s
         res: TrainResult = train(train_cfg.replace(data=",".join(roots), out=str(out / f"round_{r}"),
                                                    init_from=str(best), steps=dagger.steps_per_round, warmup=0,
-                                                   time_budget_s=budget), resume=True, progress=progress)
+                                                   time_budget_s=budget), resume=True, progress=progress,
+                                 select=select)
         best = res.best
-        rounds.append({"round": r, "beta": beta, "best": str(best), "data": ",".join(roots), "collected": summary,
-                       "rollout_seconds": rollout_s, "train_steps": res.step, "seconds": time.perf_counter() - t0})
+        rounds.append(DaggerRound(r, best, ",".join(roots), time.perf_counter() - t0, beta=beta, collected=summary,
+                                  rollout_seconds=rollout_s, train_steps=res.step))
     return rounds
 
 

@@ -30,6 +30,7 @@ from nue.errors import ConfigError, DataError, EpisodeError
 from nue.evaluate.record_keys import OnDropped, UniqueKeys, dropped_message
 from nue.nerf.online import OnlineNeRF
 from nue.policy.agent import ExpertAgent
+from nue.policy.checkpoint import load_agent, load_header, load_memory
 from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
 from nue.scene.navgrid import NavGrid
@@ -38,7 +39,6 @@ from nue.sim.env import ImageNavEnv, make_env
 from nue.sim.episodes import Episode, load_episodes
 from nue.sim.record import EpisodeRecord, RecordFormatError
 from nue.sim.task import get_task
-from nue.train.checkpoint import load_agent, load_header, load_memory
 from nue.viz.view_scene import GOAL_COLOUR, TRAJECTORY_COLOUR, EpisodeLogger, SceneViewConfig, blueprint
 from nue.viz.view_server import PageServer, check_port, grpc_url, is_loopback, page_url, url_host
 from nue.viz.view_shot import find_chromium, has_colour, screenshot_page
@@ -197,7 +197,7 @@ def _memory_from(checkpoint: str | None, camera):
 def run_live(viewer: Viewer, src: LiveSource) -> EpisodeRecord:
     """Run ``src``'s episode through :func:`nue.rollout.run_episode`, logging every step; returns its record.
     The env and agent come from the shared setup path (:func:`nue.sim.env.make_env`,
-    :func:`nue.train.checkpoint.load_agent`); the expert gets the ``fast`` memory alongside, for the maps."""
+    :func:`nue.policy.checkpoint.load_agent`); the expert gets the ``fast`` memory alongside, for the maps."""
 
     scene = Scene.load(src.scene)
     env = make_env(scene, src.task, max_steps=src.max_steps)

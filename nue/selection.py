@@ -9,6 +9,9 @@ last ``candidates`` of them through the shared agent loop on a fixed set of epis
 14 validation houses), with a 400-step limit. The winner — highest SR, then SPL, then
 fewer collisions per episode, then the later step — is copied to ``best.pt``. The records are kept in
 ``selection.jsonl`` (resumable like ``nue eval``) and the table in ``selection.json``.
+
+Selection runs episodes through :mod:`nue.evaluate.runner`, so it sits above both training and evaluation:
+:func:`nue.train.bc.train` calls it through the selector it is given (:func:`select_run`), ``nue select`` directly.
 """
 
 from __future__ import annotations
@@ -23,8 +26,10 @@ from pathlib import Path
 
 from nue.errors import DataError
 from nue.evaluate.metrics import summarize
+from nue.evaluate.runner import EvalConfig, run_eval
 from nue.output_lock import hold_output
 from nue.sim.record import EpisodeRecord
+from nue.train.bc import TrainConfig
 
 
 @dataclass(frozen=True)
@@ -91,9 +96,15 @@ def select_checkpoint(run_dir, cfg: SelectConfig = SelectConfig(), progress: boo
         return _select(Path(run_dir), cfg, progress)
 
 
-def _select(run_dir: Path, cfg: SelectConfig, progress: bool) -> list[CandidateScore]:
-    from nue.evaluate.runner import EvalConfig, run_eval
+def select_run(run_dir, cfg: TrainConfig, progress: bool = True) -> list[CandidateScore]:
+    """Closed-loop selection of a training run with the ``select_*`` settings of its config (the
+    :data:`~nue.train.bc.Selector` that :func:`nue.train.bc.train` and DAgger rounds are given)."""
+    return select_checkpoint(run_dir, SelectConfig(episodes_dir=cfg.select_episodes, scenes_root=cfg.select_scenes_root,
+                                                   candidates=cfg.select_candidates, workers=cfg.select_workers,
+                                                   device=cfg.device), progress=progress)
 
+
+def _select(run_dir: Path, cfg: SelectConfig, progress: bool) -> list[CandidateScore]:
     cands = snapshots(run_dir)[-max(cfg.candidates, 1):]
     if not cands:
         raise DataError(run_dir / "snapshots", "no snapshots to select from (train with --select closed_loop)")
