@@ -187,7 +187,8 @@ def format_exploration_markdown(rows: Sequence[ExplorationRow], reference: str =
     """Markdown table: per method and report step the mean seen area (95% interval), the mean fraction of the
     explorable area, and the ratio to ``reference`` (95% paired bootstrap)."""
     steps = sorted({s for r in rows for s in r.area})
-    head = "| method | runs | " + " | ".join(f"step {s}: m² (95%), fraction, ratio to {reference}" for s in steps) + " |"
+    ref = (labels or {}).get(reference, reference)
+    head = "| method | runs | " + " | ".join(f"step {s}: m² (95%), fraction, ratio to {ref}" for s in steps) + " |"
     lines = [head, "|" + "---|" * (len(steps) + 2)]
     for r in rows:
         cells = []

@@ -116,7 +116,7 @@ def exploration_section_markdown(name: str, records: Sequence[EpisodeRecord], re
 
     rows = exploration_summary(records, reference)
     starts = len({(r.scene, r.episode_id) for r in records})
-    labels = {r.method: method_label(canonical_method(r.method)) for r in rows}
+    labels = {m: method_label(canonical_method(m)) for m in {r.method for r in rows} | {reference}}
     return (f"## Exploration benchmark from `{name}`'s starts\n\nActive Neural SLAM's protocol on our houses: {starts} "
             f"starts of `{name}`, the goal photo of another house (nothing to find; success never ends a run), seen floor "
             "area (m², mean and 95% bootstrap interval over the starts), the mean fraction of the start's traversable "
