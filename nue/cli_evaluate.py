@@ -237,8 +237,12 @@ def diagnose_cmd(
         A.positive("--workers", workers)
         if handoff:
             for r in records:
-                run_handoff(D.read_records(r, drop_duplicates=drop_duplicates), handoff_path(r), episodes_dir,
-                            scenes_root, task, workers=workers)
+                recs_r = D.read_records(r, drop_duplicates=drop_duplicates)
+                bare = sum(x.extra.get("trajectory") is None for x in recs_r)
+                if bare:
+                    typer.echo(f"{r}: {bare} record(s) without a trajectory (made before trajectories were stored): "
+                               "no hand-off for them")
+                run_handoff(recs_r, handoff_path(r), episodes_dir, scenes_root, task, workers=workers)
         recs = load_records_with_handoff(*records, drop_duplicates=drop_duplicates, on_dropped=_echo_dropped)
         diags = D.record_diagnostics(recs, task, method)
         result["records"] = diags

@@ -161,6 +161,14 @@ def test_diagnose_prints_the_handoff(tmp_path, two_houses):
     assert nue_here("eval", "-c", "random", "--out", per_bin, "--episodes-dir", eps_dir, "--scenes-root", root,
                     "--max-steps", 5, "--per-bin", 1).returncode == 0
     assert len(per_bin.read_text().splitlines()) == 4
+    old = tmp_path / "old.jsonl"  # a record made before trajectories were stored: skipped, said so
+    rec = json.loads(out.read_text().splitlines()[0])
+    rec["extra"] = {k: v for k, v in rec["extra"].items() if k not in ("trajectory", HANDOFF_KEY)}
+    old.write_text(json.dumps(rec) + "\n")
+    res = nue_here("diagnose", "--records", old, "--handoff", "--episodes-dir", eps_dir, "--scenes-root", root)
+    assert res.returncode == 0, res.stderr
+    assert "1 record(s) without a trajectory" in res.stdout
+    assert not (tmp_path / "old.handoff.jsonl").is_file() or not (tmp_path / "old.handoff.jsonl").read_text()
     bad = nue_here("diagnose", "--records", out, "--handoff")
     assert bad.returncode == 2 and "--episodes-dir" in bad.stderr
 

@@ -106,13 +106,14 @@ def load_records_with_handoff(*paths, drop_duplicates: bool = False, on_dropped=
 
 def plan_handoff(records: Sequence[EpisodeRecord], episodes_dir, scenes_root, task: str = "paper",
                  split: str = "val") -> list[Job]:
-    """One job per (house, method) of the records that carry no hand-off; their houses' episode files are
+    """One job per (house, method) of the records that carry no hand-off but a trajectory (records made before
+    trajectories were stored are left out: nothing to recompute from); their houses' episode files are
     ``episodes_dir/<scene>.json``."""
     from nue.evaluate.runner import house_folder
 
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in records:
-        if record_handoff(r) is None:
+        if record_handoff(r) is None and r.extra.get("trajectory") is not None:  # older records have no trajectory
             groups.setdefault((r.scene, r.method), []).append(r.to_dict())
     jobs = []
     for (scene, method), recs in sorted(groups.items()):
