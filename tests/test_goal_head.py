@@ -43,6 +43,18 @@ def test_goal_head_loss_by_hand():
     assert float(goal_head_loss(out, batch)) == pytest.approx(bce0, rel=1e-6)
 
 
+def test_auroc_and_goal_head_scores_by_hand():
+    from nue.policy.accuracy import auroc, goal_head_scores
+
+    assert auroc(np.array([0.1, 0.4, 0.35, 0.8]), np.array([0, 0, 1, 1])) == 0.75
+    assert auroc(np.array([0.5, 0.5]), np.array([0, 1])) == 0.5 and math.isnan(auroc(np.ones(3), np.ones(3)))
+    s = goal_head_scores(np.array([0.9, 0.2, 0.6, 0.1]), np.log(np.array([2.0, 1.0, 1.0, 5.0])),
+                         np.array([True, True, False, False]), np.array([1.0, 1.0, 3.0, 3.0]),
+                         np.radians(np.array([10.0, 30.0, 0.0, 0.0])))
+    assert s["goal_view_auroc"] == 0.75 and s["goal_view_precision"] == 0.5 and s["goal_view_recall"] == 0.5
+    assert s["goal_log_distance_error"] == pytest.approx(math.log(2.0) / 2) and s["angle_error_in_view_deg"] == pytest.approx(20.0)
+
+
 def _input(cfg: ModelConfig, b: int) -> PolicyInput:
     h, w = cfg.map_size
     return PolicyInput(rgbd=torch.rand(b, 4, *cfg.frame_size), goal=torch.rand(b, 3, *cfg.frame_size),
