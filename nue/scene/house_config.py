@@ -19,6 +19,7 @@ import dataclasses
 from dataclasses import dataclass, field
 
 from nue.errors import ConfigError
+from nue.scene.house_plans import LAYOUTS
 from nue.scene.navgrid import ROBOT_RADIUS
 
 SURFACES = ("textured", "plain")
@@ -107,7 +108,8 @@ class HouseConfig:
     max_attempts: int = 40
     """Random draws tried per seed before giving up (each attempt is deterministic)."""
     style: str = "gibson"
-    """Name of the scene style (a key of ``STYLES``) these parameters belong to."""
+    """Name of the scene style (a key of ``STYLES``, or of ``house_styles.STYLE_DISTRIBUTIONS`` for a house
+    whose parameters were drawn from a style distribution) these parameters belong to."""
     room_area: tuple[float, float] = (12.0, 20.0)
     """BSP layouts: range of the mean room area, m^2, drawn per house (footprint area / it = the room count)."""
     max_extra_doors: int = 2
@@ -116,6 +118,9 @@ class HouseConfig:
     """Multipliers on every furniture template's width (along its wall), depth and height ranges."""
     appearance: Appearance = field(default_factory=Appearance)
     """How the surfaces look."""
+    layout: str = ""
+    """Floor-plan layout of every house (one of ``house_plans.LAYOUTS``); '' = the original mix: a hallway
+    layout with probability ``corridor_prob``, else recursive splits."""
 
     def validate(self) -> None:
         """Raise ConfigError on inconsistent values."""
@@ -142,6 +147,8 @@ class HouseConfig:
             raise ConfigError("HouseConfig", "max_attempts must be >= 1 and furniture_density >= 0")
         if self.room_area[0] <= 0 or self.max_extra_doors < 0 or min(self.furniture_scale) <= 0:
             raise ConfigError("HouseConfig", "room_area and furniture_scale must be positive, max_extra_doors >= 0")
+        if self.layout and self.layout not in LAYOUTS:
+            raise ConfigError("HouseConfig", f"layout must be '' or one of {', '.join(LAYOUTS)}, got {self.layout!r}")
         self.appearance.validate()
 
     def replace(self, **changes) -> "HouseConfig":
@@ -149,7 +156,7 @@ class HouseConfig:
         return dataclasses.replace(self, **changes)
 
 
-ADDED_FIELDS = ("style", "room_area", "max_extra_doors", "furniture_scale", "appearance")
+ADDED_FIELDS = ("style", "room_area", "max_extra_doors", "furniture_scale", "appearance", "layout")
 """HouseConfig fields added after generator version 3 (recorded in ``house.json`` only when not default)."""
 
 

@@ -53,6 +53,10 @@ EPISODE_SETS: dict[str, EpisodeSetSpec] = {
     "val_plain": EpisodeSetSpec("val_plain", "val_plain", per_bin=6, seed=0,
                                 description="14 houses of the held-out plain scene style x 3 difficulties x 6 = "
                                             "252 episodes"),
+    "val_pale": EpisodeSetSpec("val_pale", "val_pale", per_bin=6, seed=0,
+                               description="14 houses of the held-out pale family (flat near-white walls, open plan "
+                                           "or L hallway; outside the diverse training styles) x 3 difficulties x 6 "
+                                           "= 252 episodes"),
 }
 """The committed sets (``episodes/<name>/``); ``episodes/select`` (training houses) is closed-loop selection's."""
 
