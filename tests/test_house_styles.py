@@ -138,3 +138,13 @@ def test_look_distance_is_scaled_by_the_reference_spread_and_skips_the_house_its
     c = {"house": "c", "wall_L": 1.0, "wall_chroma": 1.0, "pattern_std": 1.0}
     assert nearest_look([a, b], [a, b]) == [3.46, 3.46]  # sqrt(12): each feature's spread (std) is 1
     assert nearest_look([c], [a, b]) == [1.73]  # sqrt(3)
+
+
+def test_scenes_stats_refuses_an_unknown_split(tmp_path, capsys):
+    from nue.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["scenes", "stats", "--splits", "val,nope", "--scenes-root", str(tmp_path)])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and err.startswith("error: --splits: must be one of") and "\n" not in err
+    assert not any(tmp_path.iterdir())  # nothing generated

@@ -9,6 +9,9 @@ shallower and lower furniture, higher walls, mostly recursive-split plans with s
 loop doors, fewer pictures. Same Gibson layout conventions (mesh, ``floors.txt``, 1 cm traversability
 map, one floor), same navigation constraints (doorways, passages, free extent).
 
+Styles drawn per house from a distribution (the ``diverse`` training houses, the held-out ``pale`` family) are
+:mod:`nue.scene.house_styles`'s; each house's drawn ``HouseConfig`` is recorded like a fixed style's.
+
 ``house.json`` records :func:`config_dict`: fields added after generator version 3 appear only when they
 differ from their defaults, so houses generated before them stay intact copies of their seed.
 """

@@ -10,8 +10,9 @@ a wall thickness. Two layouts:
 - ``bsp``: recursive binary splits of the footprint, one door in every dividing wall, which
   connects the two halves of every split and hence the whole house.
 
-Three more layouts exist only for the style distributions of :mod:`nue.scene.house_styles` (chosen
-with ``PlanParams.layout``; the default '' keeps the original corridor / BSP mix and its random stream):
+Three more layouts live in :mod:`nue.scene.house_plans`, used by the style distributions of
+:mod:`nue.scene.house_styles` (chosen with ``PlanParams.layout``; the default '' keeps the original
+corridor / BSP mix and its random stream):
 
 - ``l_hall``: an L-shaped hallway (two hallway rectangles joined by a full-width opening), rooms along
   both legs and beside the corner;
