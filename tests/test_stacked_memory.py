@@ -145,3 +145,16 @@ def test_bad_use_is_rejected(frames):
         stacked.render_maps([0, 0], [pose, pose], [depth, depth])
     with pytest.raises(MemoryInputError, match="inputs"):
         stacked.step([0, 1], [rgb], [depth], [pose])
+
+
+def test_render_chunking_does_not_change_the_maps(frames):
+    """Slots rendered in one query, one by one, or in chunks of a slot's rays give the same maps."""
+    mems = [StackedMemory(SMALL, 2, CAMERA, render_points=p) for p in (1 << 16, 24 * 32 * 8, 1000)]
+    for rgb, depth, pose in frames[:2]:
+        for m in mems:
+            m.step([0, 1], [rgb, rgb], [depth, depth], [pose, pose])
+    rgb, depth, pose = frames[2]
+    got = [m.render_maps([1, 0], [pose, pose], [depth, depth]) for m in mems]
+    for other in got[1:]:
+        for a, b in zip(got[0], other):
+            assert max(max_diff(a, b).values()) <= TOL

@@ -105,7 +105,9 @@ class _SlotRowAdam(RowAdam):
 class StackedMemory:
     """The memories of ``slots`` episodes (see the module docstring). ``config``: a preset name or
     :class:`MemoryConfig` with ``field_type == "grid"``; ``init_state``: the fixed initial weights
-    (``OnlineNeRF.initial_state()``, e.g. a checkpoint's ``memory_init``), by default those of ``init_seed``."""
+    (``OnlineNeRF.initial_state()``, e.g. a checkpoint's ``memory_init``), by default those of ``init_seed``;
+    ``render_points``: sample points per rendering query (default the preset's ``render_chunk``): slots are rendered
+    in groups that fit, or one slot in chunks of rays if one does not (the maps do not depend on it)."""
 
     def __init__(
         self,
@@ -114,6 +116,7 @@ class StackedMemory:
         camera: CameraConfig | None = None,
         device: str | torch.device | None = None,
         init_state: dict[str, torch.Tensor] | None = None,
+        render_points: int | None = None,
     ):
         self.config = cfg = get_memory(config)
         if cfg.field_type != "grid":
@@ -121,6 +124,7 @@ class StackedMemory:
         if int(slots) < 1:
             raise ConfigError(None, f"stacked memory needs at least one slot, got {slots}")
         self.slots = int(slots)
+        self.render_points = int(render_points if render_points is not None else cfg.render_chunk)
         self.camera = camera if camera is not None else CameraConfig()
         self.device = torch.device(device if device is not None else cfg.device)
         self.pixel_rays = PixelRays(self.camera, self.device)
@@ -281,29 +285,42 @@ class StackedMemory:
             transforms.append((pose, fz))
             bundles.append(self.pixel_rays.bundle(m, self._map_pixels, ranges, self._map_dirs))
         n = h * w
-        # slots in groups of up to render_chunk sample points per query (one slot at least): larger tensors cost
-        # more in fresh memory pages than the batching saves
-        group = max(1, cfg.render_chunk // (n * cfg.render_samples))
+        # one query per group of slots, or per chunk of one slot's rays, of at most ``render_points`` sample points:
+        # larger tensors fall out of the cache (and past the allocator's mmap threshold), which costs more per point
+        # than a query's fixed cost
+        group = self.render_points // (n * cfg.render_samples)
+        queries: list[tuple[list[int], RayBundle]] = []
+        if group >= 1:
+            for g0 in range(0, len(slots), group):
+                bs = bundles[g0 : g0 + group]
+                queries.append((slots[g0 : g0 + group], RayBundle(*(torch.cat([getattr(b, k) for b in bs])
+                                                                   for k in ("origins", "directions", "ranges")))))
+        else:
+            rays = max(1, self.render_points // cfg.render_samples)
+            for i, b in zip(slots, bundles):
+                queries += [([i], RayBundle(b.origins[r : r + rays], b.directions[r : r + rays], b.ranges[r : r + rays]))
+                            for r in range(0, n, rays)]
+        chunks: dict[str, list[torch.Tensor]] = {"i_u": [], "rgb": [], "depth": [], "transmittance": [], "i_cog": []}
+        with torch.inference_mode():
+            for sl, bundle in queries:
+                samples, out, wts, transmittance = self._query(sl, bundle, cfg.render_samples, self._params(sl))
+                chunks["i_u"].append(render_uncertainty(wts, out.variance, transmittance, cfg.unseen_variance)[:, None])
+                chunks["rgb"].append(render_rgb(wts, out.rgb))
+                chunks["depth"].append(render_depth(wts, samples.t)[:, None])
+                chunks["transmittance"].append(transmittance[:, None])
+                chunks["i_cog"].append(render_features(wts, out.feature))
+            pano = None
+            if cfg.panorama_headings:
+                per_slot = cfg.panorama_headings * self._pano_pixels.numel() * cfg.panorama_samples
+                pg = max(1, self.render_points // per_slot)
+                pano = torch.cat([self._panorama(slots[g0 : g0 + pg], transforms[g0 : g0 + pg], self._params(slots[g0 : g0 + pg]))
+                                  for g0 in range(0, len(slots), pg)])
+        parts = {k: torch.cat(v) for k, v in chunks.items()}
         maps = []
-        for g0 in range(0, len(slots), group):
-            sl = slots[g0 : g0 + group]
-            bs = bundles[g0 : g0 + group]
-            bundle = RayBundle(*(torch.cat([getattr(b, k) for b in bs]) for k in ("origins", "directions", "ranges")))
-            params = self._params(sl)
-            with torch.inference_mode():
-                samples, out, wts, transmittance = self._query(sl, bundle, cfg.render_samples, params)
-                parts = {
-                    "i_u": render_uncertainty(wts, out.variance, transmittance, cfg.unseen_variance)[:, None],
-                    "rgb": render_rgb(wts, out.rgb),
-                    "depth": render_depth(wts, samples.t)[:, None],
-                    "transmittance": transmittance[:, None],
-                    "i_cog": render_features(wts, out.feature),
-                }
-                pano = self._panorama(sl, transforms[g0 : g0 + group], params) if cfg.panorama_headings else None
-            for j in range(len(sl)):
-                one = {k: v[j * n : (j + 1) * n].T.reshape(-1, h, w) for k, v in parts.items()}
-                one["depth"] = one["depth"] / self._map_range_per_z.reshape(1, h, w)
-                maps.append(MemoryMaps(**one, panorama=None if pano is None else pano[j].clone()))
+        for j in range(len(slots)):
+            one = {k: v[j * n : (j + 1) * n].T.reshape(-1, h, w) for k, v in parts.items()}
+            one["depth"] = one["depth"] / self._map_range_per_z.reshape(1, h, w)
+            maps.append(MemoryMaps(**one, panorama=None if pano is None else pano[j].clone()))
         return maps
 
     def _panorama(self, slots: list[int], poses: list[tuple[np.ndarray, float]], params) -> torch.Tensor:
