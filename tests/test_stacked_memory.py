@@ -147,9 +147,11 @@ def test_bad_use_is_rejected(frames):
         stacked.step([0, 1], [rgb], [depth], [pose])
 
 
-def test_render_chunking_does_not_change_the_maps(frames):
-    """Slots rendered in one query, one by one, or in chunks of a slot's rays give the same maps."""
-    mems = [StackedMemory(SMALL, 2, CAMERA, render_points=p) for p in (1 << 16, 24 * 32 * 8, 1000)]
+def test_chunking_does_not_change_the_maps(frames):
+    """Slots rendered in one query, one by one, or in chunks of a slot's rays, and trained together or one by one,
+    give the same maps."""
+    mems = [StackedMemory(SMALL, 2, CAMERA, render_points=p, train_points=q)
+            for p, q in ((1 << 16, None), (24 * 32 * 8, 1), (1000, 512 * 8))]
     for rgb, depth, pose in frames[:2]:
         for m in mems:
             m.step([0, 1], [rgb, rgb], [depth, depth], [pose, pose])

@@ -107,7 +107,8 @@ class StackedMemory:
     :class:`MemoryConfig` with ``field_type == "grid"``; ``init_state``: the fixed initial weights
     (``OnlineNeRF.initial_state()``, e.g. a checkpoint's ``memory_init``), by default those of ``init_seed``;
     ``render_points``: sample points per rendering query (default the preset's ``render_chunk``): slots are rendered
-    in groups that fit, or one slot in chunks of rays if one does not (the maps do not depend on it)."""
+    in groups that fit, or one slot in chunks of rays if one does not (the maps do not depend on it);
+    ``train_points``: sample points per training query (default: all listed slots in one), at least one slot's."""
 
     def __init__(
         self,
@@ -117,6 +118,7 @@ class StackedMemory:
         device: str | torch.device | None = None,
         init_state: dict[str, torch.Tensor] | None = None,
         render_points: int | None = None,
+        train_points: int | None = None,
     ):
         self.config = cfg = get_memory(config)
         if cfg.field_type != "grid":
@@ -125,6 +127,7 @@ class StackedMemory:
             raise ConfigError(None, f"stacked memory needs at least one slot, got {slots}")
         self.slots = int(slots)
         self.render_points = int(render_points if render_points is not None else cfg.render_chunk)
+        self.train_points = int(train_points if train_points is not None else 1 << 62)
         self.camera = camera if camera is not None else CameraConfig()
         self.device = torch.device(device if device is not None else cfg.device)
         self.pixel_rays = PixelRays(self.camera, self.device)
@@ -419,7 +422,8 @@ class StackedMemory:
 
     def update(self, slots: list[int], n_iters: int | None = None) -> None:
         """``n_iters`` (default: the preset's K) training iterations of each listed slot on rays from its own replay:
-        per iteration one query of all their rays, one backward, one optimiser step."""
+        per iteration one query of all their rays, one backward, one optimiser step (per group of slots if
+        ``train_points`` splits them)."""
         slots = self._listed(slots)
         for i in slots:
             if self._state[i].n == 0:
@@ -446,35 +450,45 @@ class StackedMemory:
         pts = bundle.origins[:, None, :] + samples.t[..., None] * bundle.directions[:, None, :]
         rows, w = self.geom.corners((pts * (1.0 / cfg.radius)).reshape(-1, 3))
         rows = rows + (slot_of * self.rows_per_slot).repeat_interleave(n_bins)[:, None]
-        idx = torch.as_tensor(slots, dtype=torch.long, device=self.device)
-        params = {k: v.index_select(0, idx).requires_grad_(True) for k, v in self.dense.items()}
-        m = {k: v.index_select(0, idx) for k, v in self.exp_avg.items()}
-        v2 = {k: v.index_select(0, idx) for k, v in self.exp_avg_sq.items()}
+        # slots in groups of at most train_points sample points per query, each group with its own leaf parameters
+        size = max(1, self.train_points // (n_rays * n_bins))
+        groups = []
+        for g0 in range(0, n_slots, size):
+            sl = slots[g0 : g0 + size]
+            idx = torch.as_tensor(sl, dtype=torch.long, device=self.device)
+            groups.append((g0, sl, idx, {k: v.index_select(0, idx).requires_grad_(True) for k, v in self.dense.items()},
+                           {k: v.index_select(0, idx) for k, v in self.exp_avg.items()},
+                           {k: v.index_select(0, idx) for k, v in self.exp_avg_sq.items()}))
         beta_min = self.geom.config.beta_min
         per = n_slots * n_rays
         for it in range(n_iters):
-            r, p = slice(it * per, (it + 1) * per), slice(it * per * n_bins, (it + 1) * per * n_bins)
-            out = self._field(rows[p], w[p], bundle.directions[r], params, n_bins)
-            weights, transmittance = compositing_weights(out.density, samples.deltas[r])
-            ray_var = render_uncertainty(weights, out.variance) + beta_min
-            nll = uncertainty_nll(render_rgb(weights, out.rgb), target[r], ray_var).view(n_slots, n_rays).mean(dim=1)
-            loss = nll + cfg.density_weight * out.density.view(n_slots, -1).mean(dim=1)
-            if cfg.depth_weight > 0:
-                t, d = samples.t[r], samples.deltas[r]
-                depth_pred = (weights * t).sum(dim=-1) + transmittance * (t[:, -1] + 0.5 * d[:, -1])
-                err = (depth_pred - bundle.ranges[r]).abs().view(n_slots, n_rays).mean(dim=1)
-                loss = loss + cfg.depth_weight * err
-            self.table.grad = None
-            for q in params.values():
-                q.grad = None
-            loss.sum().backward()  # slots share no parameter: each slot's gradient is that of its own loss
-            self._dense_step(slots, params, m, v2)
-            self.row_adam.step_slots(slots)
+            for g0, sl, _, params, m, v2 in groups:
+                ns = len(sl)
+                r0 = it * per + g0 * n_rays
+                r = slice(r0, r0 + ns * n_rays)
+                p = slice(r0 * n_bins, (r0 + ns * n_rays) * n_bins)
+                out = self._field(rows[p], w[p], bundle.directions[r], params, n_bins)
+                weights, transmittance = compositing_weights(out.density, samples.deltas[r])
+                ray_var = render_uncertainty(weights, out.variance) + beta_min
+                nll = uncertainty_nll(render_rgb(weights, out.rgb), target[r], ray_var).view(ns, n_rays).mean(dim=1)
+                loss = nll + cfg.density_weight * out.density.view(ns, -1).mean(dim=1)
+                if cfg.depth_weight > 0:
+                    t, d = samples.t[r], samples.deltas[r]
+                    depth_pred = (weights * t).sum(dim=-1) + transmittance * (t[:, -1] + 0.5 * d[:, -1])
+                    err = (depth_pred - bundle.ranges[r]).abs().view(ns, n_rays).mean(dim=1)
+                    loss = loss + cfg.depth_weight * err
+                self.table.grad = None
+                for q in params.values():
+                    q.grad = None
+                loss.sum().backward()  # slots share no parameter: each slot's gradient is that of its own loss
+                self._dense_step(sl, params, m, v2)
+                self.row_adam.step_slots(sl)
         with torch.no_grad():
-            for k in self.dense:
-                self.dense[k].index_copy_(0, idx, params[k].detach())
-                self.exp_avg[k].index_copy_(0, idx, m[k])
-                self.exp_avg_sq[k].index_copy_(0, idx, v2[k])
+            for _, _, idx, params, m, v2 in groups:
+                for k in self.dense:
+                    self.dense[k].index_copy_(0, idx, params[k].detach())
+                    self.exp_avg[k].index_copy_(0, idx, m[k])
+                    self.exp_avg_sq[k].index_copy_(0, idx, v2[k])
         self.table.grad = None
 
     @torch.no_grad()
