@@ -48,6 +48,11 @@ from nue.nerf.rays import (
 from nue.nerf.rendering import compositing_weights, render_depth, render_features, render_rgb, render_uncertainty
 from nue.sim.task import CameraConfig
 
+TRAIN_POINTS = 8192
+"""Default sample points per training query: two slots of the ``fast`` preset (512 rays x 8 samples). Measured on
+this project's 2-core machine (benchmarks/stacked_memory.py, thread CPU time, B = 8): queries of 1, 2 and 8 slots
+cost 14.6, 12.9 and 14.8 ms per episode-step, and rendering 8 slots' maps in one query cost more per point than one
+query per slot (larger tensors fall out of the cache and past the allocator's mmap threshold)."""
 DENSE_KEYS = ("colour_code.weight", "colour_code.bias", "colour_dir.weight", "colour_out.weight", "colour_out.bias")
 """The colour MLP's parameters, stacked along a leading slot axis."""
 
@@ -106,9 +111,9 @@ class StackedMemory:
     """The memories of ``slots`` episodes (see the module docstring). ``config``: a preset name or
     :class:`MemoryConfig` with ``field_type == "grid"``; ``init_state``: the fixed initial weights
     (``OnlineNeRF.initial_state()``, e.g. a checkpoint's ``memory_init``), by default those of ``init_seed``;
-    ``render_points``: sample points per rendering query (default the preset's ``render_chunk``): slots are rendered
-    in groups that fit, or one slot in chunks of rays if one does not (the maps do not depend on it);
-    ``train_points``: sample points per training query (default: all listed slots in one), at least one slot's."""
+    ``render_points``: sample points per rendering query (default one slot's map, or the preset's ``render_chunk`` if
+    smaller): slots are rendered in groups that fit, or one slot in chunks of rays if one does not; ``train_points``:
+    sample points per training query (default ``TRAIN_POINTS``), at least one slot's. Neither changes the maps."""
 
     def __init__(
         self,
@@ -126,8 +131,9 @@ class StackedMemory:
         if int(slots) < 1:
             raise ConfigError(None, f"stacked memory needs at least one slot, got {slots}")
         self.slots = int(slots)
-        self.render_points = int(render_points if render_points is not None else cfg.render_chunk)
-        self.train_points = int(train_points if train_points is not None else 1 << 62)
+        per_map = cfg.map_height * cfg.map_width * (cfg.render_samples + cfg.sampler.free_samples)
+        self.render_points = int(render_points if render_points is not None else min(cfg.render_chunk, per_map))
+        self.train_points = int(train_points if train_points is not None else TRAIN_POINTS)
         self.camera = camera if camera is not None else CameraConfig()
         self.device = torch.device(device if device is not None else cfg.device)
         self.pixel_rays = PixelRays(self.camera, self.device)
