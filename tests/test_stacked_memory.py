@@ -160,3 +160,25 @@ def test_chunking_does_not_change_the_maps(frames):
     for other in got[1:]:
         for a, b in zip(got[0], other):
             assert max(max_diff(a, b).values()) <= TOL
+
+
+def test_lag_and_schedule_per_slot(frames):
+    """With a memory lag and a sparser schedule each slot still follows OnlineNeRF's step for step."""
+    cfg = SMALL.replace(lag=2, observe_every=2, update_every=3)
+    stacked, refs = StackedMemory(cfg, 2, CAMERA), [OnlineNeRF(cfg, CAMERA) for _ in range(2)]
+    for i in range(2):
+        refs[i].reset(i)
+        stacked.reset_slot(i, i)
+    for t in range(7):
+        fr = [frames[t], frames[10 + t]]
+        if t == 3:  # slot 1 sits this step out (e.g. its env is between episodes)
+            stacked.step([0], [fr[0][0]], [fr[0][1]], [fr[0][2]])
+            refs[0].step(*fr[0])
+            continue
+        stacked.step([1, 0], [fr[1][0], fr[0][0]], [fr[1][1], fr[0][1]], [fr[1][2], fr[0][2]])
+        for i in range(2):
+            refs[i].step(*fr[i])
+    rgb, depth, pose = frames[20]
+    for i, maps in enumerate(stacked.render_maps([0, 1], [pose, pose], [depth, depth])):
+        assert max(max_diff(maps, refs[i].render_maps(pose, depth)).values()) <= TOL
+        assert stacked.replay_len(i) == refs[i].replay_len
