@@ -2,9 +2,10 @@
 
 Slot i holds what one :class:`nue.nerf.online.OnlineNeRF` holds for one episode — a replay, a voxel-grid field and
 its optimiser state, a ray generator, an episode frame — and behaves like it (``reset_slot`` / ``render_maps`` /
-``step`` follow ``reset`` / ``render_maps`` / ``step``), but the listed slots of a call share one field query,
-one backward and one optimiser step: the small ops whose overhead dominates one memory's step are paid once for
-the B episodes.
+``step`` follow ``reset`` / ``render_maps`` / ``step``), but the listed slots of a call share field queries,
+backward passes and optimiser steps (in groups of ``train_points`` / ``render_points`` sample points), so the
+fixed cost of a call is paid once for several episodes. The per-ray work is not shared: on the CPU measured
+(docs/history/benchmarks.md, "Stacked memory") B = 8 costs about what 8 OnlineNeRFs cost.
 
 Stacking (``grid`` field only):
 - the B voxel tables are one table of ``B * (V + 1)`` rows, slot i's at rows ``[i (V + 1), (i + 1) (V + 1))``,
