@@ -7,9 +7,9 @@ held-out steps of a collection (frames and goal photos as stored, 90 x 120):
 
 - ``sift``: mutual ratio-test SIFT matches between the current RGB frame and the goal photo (OpenCV; the count is
   the score), no learning;
-- ``siamese``: a small shared CNN embeds the frame and the goal photo; the goal's pooled embedding is correlated
-  (cosine) with every cell of the frame's feature map; max / mean / top-k of that map and the two pooled embeddings'
-  cosine go through an MLP to the in-view logit. Trained with class-balanced BCE on the collection's training part.
+- ``siamese``: NUE's goal-view matching branch (:class:`nue.policy.goal_match.GoalMatch`: a shared CNN, best
+  cosine match of every goal cell in the frame and back) and a linear layer to the in-view logit, trained alone with
+  class-balanced BCE on the collection's training part.
 
     python benchmarks/diagnostics/goal_match_probe.py --data data/demos_v8 --out results/diagnostics/goal_match_probe.json
 """
@@ -30,6 +30,7 @@ from torch import nn
 
 from nue.policy.accuracy import auroc
 from nue.policy.config import get_model_config
+from nue.policy.goal_match import GoalMatch
 from nue.train.dataset import BufferSampler, DemoSet
 
 
@@ -71,35 +72,11 @@ def sift_scores(data: DemoSet, ep: np.ndarray, st: np.ndarray, cfg) -> tuple[np.
     return np.asarray(scores, dtype=np.float64), np.concatenate(labels) > 0.5
 
 
-class Siamese(nn.Module):
-    """Shared CNN on frame and goal (3 x 90 x 120 -> 32 x 11 x 15), cosine correlation of the goal's pooled vector with
-    the frame's cells, statistics of that map + the pooled cosine -> MLP -> logit."""
-
-    def __init__(self, ch: int = 32):
-        super().__init__()
-        self.enc = nn.Sequential(
-            nn.Conv2d(3, 16, 5, stride=2, padding=2), nn.LeakyReLU(0.01),
-            nn.Conv2d(16, 32, 3, stride=2, padding=1), nn.LeakyReLU(0.01),
-            nn.Conv2d(32, ch, 3, stride=2, padding=1), nn.LeakyReLU(0.01),
-            nn.Conv2d(ch, ch, 3, padding=1))
-        self.head = nn.Sequential(nn.Linear(5, 32), nn.LeakyReLU(0.01), nn.Linear(32, 1))
-
-    def forward(self, frame: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
-        f = F.normalize(self.enc(frame), dim=1)  # (B, C, h, w)
-        g = self.enc(goal)
-        gv = F.normalize(g.mean(dim=(2, 3)), dim=1)  # (B, C)
-        corr = torch.einsum("bchw,bc->bhw", f, gv).flatten(1)  # (B, h*w) cosine per cell
-        fv = F.normalize(f.mean(dim=(2, 3)), dim=1)
-        top = corr.topk(5, dim=1).values.mean(dim=1)
-        stats = torch.stack([corr.max(dim=1).values, corr.mean(dim=1), top, (fv * gv).sum(dim=1),
-                             corr.std(dim=1)], dim=1)
-        return self.head(stats)[:, 0]
-
-
 def train_siamese(train: DemoSet, held: DemoSet, cfg, steps: int, batch: int, seed: int, ep, st) -> dict:
     torch.manual_seed(seed)
-    net = Siamese()
-    opt = torch.optim.Adam(net.parameters(), lr=2e-3)
+    net = GoalMatch(32)
+    clf = nn.Linear(32, 1)
+    opt = torch.optim.Adam([*net.parameters(), *clf.parameters()], lr=2e-3)
     sampler = BufferSampler(train, batch, np.random.default_rng(seed))
     pos = float(np.mean(np.concatenate([np.asarray(e["goal_in_view"]) for e in train.episodes])))
     w_pos = (1 - pos) / max(pos, 1e-6)
@@ -107,7 +84,7 @@ def train_siamese(train: DemoSet, held: DemoSet, cfg, steps: int, batch: int, se
     for step in range(steps):
         e, s = next(sampler)
         b = train.batch(e, s, cfg)
-        logit = net(b.inp.rgbd[:, :3], b.inp.goal)
+        logit = clf(net(b.inp.rgbd[:, :3], b.inp.goal))[:, 0]
         y = b.goal_in_view.float()
         loss = F.binary_cross_entropy_with_logits(logit, y, pos_weight=torch.tensor(w_pos))
         opt.zero_grad()
@@ -122,7 +99,7 @@ def train_siamese(train: DemoSet, held: DemoSet, cfg, steps: int, batch: int, se
     with torch.no_grad():
         for i in range(0, len(ep), 256):
             b = held.batch(ep[i:i + 256], st[i:i + 256], cfg)
-            scores.append(torch.sigmoid(net(b.inp.rgbd[:, :3], b.inp.goal)).numpy())
+            scores.append(torch.sigmoid(clf(net(b.inp.rgbd[:, :3], b.inp.goal))[:, 0]).numpy())
             labels.append(b.goal_in_view.numpy() > 0.5)
     p, y = np.concatenate(scores), np.concatenate(labels)
     return {"auroc": round(auroc(p, y), 4), "steps": steps, "batch": batch, "train_seconds": round(time.time() - t0, 1),
