@@ -38,9 +38,19 @@ def test_goal_head_loss_by_hand():
     batch = SimpleNamespace(goal_in_view=torch.tensor([1.0, 0.0]), goal_distance=torch.tensor([1.0, 7.0]))
     bce = (math.log(2.0) + math.log(1 + math.exp(2.0))) / 2
     assert float(goal_head_loss(out, batch)) == pytest.approx(bce + math.log(2.0), rel=1e-6)
+    weighted = (3 * math.log(2.0) + math.log(1 + math.exp(2.0))) / 2  # the in-view step counts 3 times
+    assert float(goal_head_loss(out, batch, pos_weight=3.0)) == pytest.approx(weighted + math.log(2.0), rel=1e-6)
     batch.goal_in_view = torch.tensor([0.0, 0.0])  # no in-view step: the distance term is left out
     bce0 = (math.log(2.0) + math.log(1 + math.exp(2.0))) / 2
     assert float(goal_head_loss(out, batch)) == pytest.approx(bce0, rel=1e-6)
+
+
+def test_in_view_weight_is_the_ratio_of_other_steps_to_in_view_steps():
+    from nue.train.bc import in_view_weight
+
+    data = SimpleNamespace(episodes=[{"goal_in_view": np.array([0, 0, 1], np.int8)}, {"goal_in_view": np.array([0, 0, 0, 1], np.int8)}])
+    assert in_view_weight(data) == 2.5
+    assert in_view_weight(SimpleNamespace(episodes=[{"goal_in_view": np.zeros(4, np.int8)}])) == 1.0
 
 
 def test_auroc_and_goal_head_scores_by_hand():

@@ -69,6 +69,10 @@ class TrainConfig:
     goal_weight: float = 0.5
     """Weight of the exploitation head's loss (models with ``goal_head``): binary cross-entropy of goal-in-view
     plus the L1 of the log distance on the steps with the goal in view."""
+    goal_balance: bool = True
+    """Weigh the in-view steps of the exploitation head's cross-entropy by the training data's ratio of other steps to
+    them (about 9 on the v6 demonstrations), so the rare positives drive the head; False: unweighted (the head's
+    probability is then calibrated to the data's rate)."""
     class_balance: float = 0.5
     """Class weights (n / n_c)^p normalised to mean 1: p = 0 none, 1 inverse frequency, 0.5 in between."""
     grad_clip: float = 5.0
@@ -139,7 +143,8 @@ SELECTIONS = ("accuracy", "closed_loop")
 BUDGET_CLOCKS = ("wall", "cpu")
 
 
-def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainConfig, device: torch.device):
+def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainConfig, device: torch.device,
+                 goal_pos_weight: float = 1.0):
     """One training forward: (total, cross-entropy, angle L1 or None). Under ``bf16`` the network runs in
     bfloat16 autocast and the loss is taken on its outputs cast back to float32."""
     bf16 = resolve_precision(cfg.precision, device) == "bf16"
@@ -150,7 +155,7 @@ def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainCo
         return None if x is None else x.float()
 
     out = PolicyOutput(out.logits.float(), f32(out.aux_angle), out.state, f32(out.goal_view), f32(out.goal_log_distance))
-    return bc_loss(out, batch, weights, cfg.aux_weight, cfg.goal_weight)
+    return bc_loss(out, batch, weights, cfg.aux_weight, cfg.goal_weight, goal_pos_weight)
 
 
 def _dist():
@@ -183,30 +188,39 @@ def class_weights(counts: np.ndarray, power: float) -> torch.Tensor:
     return torch.as_tensor(w / w.mean(), dtype=torch.float32)
 
 
-def bc_loss(out, batch, weights: torch.Tensor, aux_weight: float, goal_weight: float = 0.0):
+def bc_loss(out, batch, weights: torch.Tensor, aux_weight: float, goal_weight: float = 0.0, goal_pos_weight: float = 1.0):
     """(total, cross-entropy, angle L1 or None) of a forward_sequence output against a batch; the total includes
     ``goal_weight`` x :func:`goal_head_loss` when the model has the exploitation head."""
     logits = out.logits.reshape(-1, out.logits.shape[-1])
     ce = F.cross_entropy(logits, batch.action.reshape(-1), weight=weights.to(logits.device))
     total = ce
     if out.goal_view is not None and batch.goal_in_view is not None:
-        total = total + goal_weight * goal_head_loss(out, batch)
+        total = total + goal_weight * goal_head_loss(out, batch, goal_pos_weight)
     if out.aux_angle is None:
         return total, ce, None
     aux = angle_l1_loss(out.aux_angle.reshape(-1), batch.goal_angle.reshape(-1))
     return total + aux_weight * aux, ce, aux
 
 
-def goal_head_loss(out, batch) -> torch.Tensor:
+def goal_head_loss(out, batch, pos_weight: float = 1.0) -> torch.Tensor:
     """The exploitation head's loss: ``BCE(goal_view, in_view) + mean over in-view steps |log_d - log(d)|`` (the
-    distance term is 0 for a batch without an in-view step; distances are floored at 0.1 m before the log)."""
+    in-view terms of the BCE weighted ``pos_weight``; the distance term is 0 for a batch without an in-view step;
+    distances are floored at 0.1 m before the log)."""
     view = batch.goal_in_view.reshape(-1).to(out.goal_view.dtype)
-    bce = F.binary_cross_entropy_with_logits(out.goal_view.reshape(-1), view)
+    bce = F.binary_cross_entropy_with_logits(out.goal_view.reshape(-1), view,
+                                             pos_weight=torch.tensor(float(pos_weight), device=view.device))
     mask = view > 0.5
     if not bool(mask.any()):
         return bce
     target = torch.log(batch.goal_distance.reshape(-1)[mask].clamp_min(0.1))
     return bce + (out.goal_log_distance.reshape(-1)[mask] - target).abs().mean()
+
+
+def in_view_weight(data) -> float:
+    """Steps without the goal in view per step with it, over a collection's episodes (1 without any either way)."""
+    n = sum(len(e["goal_in_view"]) for e in data.episodes)
+    pos = sum(int(np.asarray(e["goal_in_view"]).sum()) for e in data.episodes)
+    return (n - pos) / pos if 0 < pos < n else 1.0
 
 
 @dataclass
@@ -260,6 +274,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
     model_cfg = get_model_config(cfg.model).for_task(task)
     data.check_layout(model_cfg)
     weights = class_weights(data.action_counts(model_cfg.num_actions), cfg.class_balance)
+    goal_pos_weight = in_view_weight(data) if model_cfg.goal_head and cfg.goal_balance else 1.0
 
     # -- model, optimiser, schedule ----------------------------------------------------------------
     torch.manual_seed(cfg.seed)
@@ -289,7 +304,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
     # Before a resume restores torch's generator: building the memory's field (policy_meta) draws from it.
     stored_cfg = dataclasses.asdict(cfg)
     if not model_cfg.goal_head:  # only models with the exploitation head record its weight (older checkpoints' dicts)
-        del stored_cfg["goal_weight"]
+        del stored_cfg["goal_weight"], stored_cfg["goal_balance"]
     meta = policy_meta(task, manifest.memory, model_cfg, manifest.scenes, manifest.hash(),
                        {**stored_cfg, "precision_resolved": resolve_precision(cfg.precision, device)},
                        {"episodes": data.n_episodes, "steps": len(data),
@@ -353,7 +368,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
             batch = data.batch(eps[None], steps_[None], model_cfg, device)
             reset_t = torch.ones(batch.action.shape, dtype=torch.bool, device=device)
         batch = swap_maps(batch, rng, cfg.map_dropout)  # a no-op (no draws) for models without maps
-        loss, ce, aux = forward_loss(net, model, batch, reset_t, weights, cfg, device)
+        loss, ce, aux = forward_loss(net, model, batch, reset_t, weights, cfg, device, goal_pos_weight)
         if not torch.isfinite(loss):
             raise DataError(out_dir, f"the training loss is {loss.item()} at step {step + 1} (precision "
                                      f"{resolve_precision(cfg.precision, device)}, compile {cfg.compile}); stopped, "
