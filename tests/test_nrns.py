@@ -20,7 +20,7 @@ from nue.policy.nrns_graph import GhostConfig, TopoGraph, ghost_offsets
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import save_episodes
 from nue.sim.task import CameraConfig
-from nue.train.nrns_train import path_labels
+from nue.train.nrns_train import episode_labels, path_labels
 
 from .conftest import BOX_ROOM, FIXTURES, nue_here
 
@@ -35,6 +35,11 @@ def test_distance_labels_on_a_straight_corridor():
     assert np.allclose(labels, [1.55, 1.30, 1.05, 0.80, 0.55])
     turned = np.vstack([poses[:1], poses])  # a turn in place: no distance travelled, the same label
     assert np.allclose(path_labels(turned, 1.25, 0.3)[:2], [1.55, 1.55])
+    # An episode file's stored geodesic distances win; a non-finite one (and an old file without them) falls back.
+    meta = {"record": {"path_length": 1.25, "final_geodesic": 0.3}}
+    geo = np.array([1.5, 1.2, np.inf, 0.8, 0.5], dtype=np.float32)
+    assert np.allclose(episode_labels({"pose": poses, "geodesic": geo}, meta, "f"), [1.5, 1.2, 1.05, 0.8, 0.5])
+    assert np.allclose(episode_labels({"pose": poses}, meta, "f"), [1.55, 1.30, 1.05, 0.80, 0.55])
 
 
 def _wall_depth(z_left: float, z_right: float) -> np.ndarray:
@@ -50,14 +55,14 @@ def _bearings(offsets: np.ndarray) -> list[float]:
 
 
 def test_ghosts_read_from_a_hand_built_depth_frame():
-    cfg = GhostConfig()
+    cfg = GhostConfig(bearings_deg=(-30.0, -15.0, 0.0, 15.0, 30.0), ranges=(1.5,))
     # A wall 1 m ahead on the left half, 4 m ahead on the right: only the directions to the right are open (the
     # straight-ahead corridor, 0.2 m wide each side, holds the left wall's points).
     got = ghost_offsets(_wall_depth(1.0, 4.0), CAM, cfg)
     assert _bearings(got) == [-30, -15]
-    assert np.allclose(np.linalg.norm(got, axis=1), cfg.ghost_range)
+    assert np.allclose(np.linalg.norm(got, axis=1), 1.5)
     assert _bearings(ghost_offsets(_wall_depth(4.0, 1.0), CAM, cfg)) == [15, 30]
-    # Nothing in range (the renderer's 0 = no surface, or walls beyond ghost_range + clearance): every bearing.
+    # Nothing in range (the renderer's 0 = no surface, or walls beyond range + clearance): every bearing.
     assert _bearings(ghost_offsets(np.zeros((CAM.height, CAM.width)), CAM, cfg)) == [-30, -15, 0, 15, 30]
     assert len(ghost_offsets(_wall_depth(1.9, 1.9), CAM, cfg)) == 5
     # A wall across the view at 1.7 m: met at 1.7 / cos(b) along bearing b, beyond 1.5 + 0.3 only at +-30 degrees.
@@ -67,6 +72,9 @@ def test_ghosts_read_from_a_hand_built_depth_frame():
     v = (np.arange(CAM.height) + 0.5 - CAM.cy) / CAM.fy
     floor = np.where(v[:, None] > 0, CAM.mount_height / np.maximum(v[:, None], 1e-9), 0.0) * np.ones((1, CAM.width))
     assert len(ghost_offsets(floor, CAM, cfg)) == 5
+    # Two rings (the default ranges 0.75 and 1.5 m): a wall across at 1.5 m leaves the near ring only.
+    near = ghost_offsets(_wall_depth(1.5, 1.5), CAM, GhostConfig())
+    assert np.allclose(np.linalg.norm(near, axis=1), 0.75) and _bearings(near) == [-30, -20, -10, 0, 10, 20, 30]
 
 
 def _hand_graph() -> tuple[TopoGraph, dict[str, int]]:
@@ -159,6 +167,20 @@ def tiny_demos(tmp_path_factory):
     cfg = CollectConfig(scene_dirs=(str(root / "room_a"),), episodes_per_bin=1, heldout_per_bin=1, memory=TINY)
     collect(out, cfg, root / "scenes", workers=1, progress=False)
     return out
+
+
+def test_collection_stores_the_geodesic_labels(tiny_demos):
+    """Each step's geodesic distance to the goal: the episode's start distance first; the geodesic expert's path still
+    to travel agrees with it to within its comfort detours."""
+    from nue.train.dataset import DemoSet
+
+    demos = DemoSet(tiny_demos, "train")
+    for arrays, meta in zip(demos.episodes, demos.metas):
+        geo, record = np.asarray(arrays["geodesic"]), meta["record"]
+        assert geo.shape == (meta["steps"],) and geo.dtype == np.float32
+        assert geo[0] == pytest.approx(record["geodesic_start"], abs=1e-4)
+        path = path_labels(np.asarray(arrays["pose"]), record["path_length"], record["final_geodesic"])
+        assert np.abs(path - geo).max() < 0.5, np.abs(path - geo).max()
 
 
 def test_train_and_eval_nrns_end_to_end(tiny_demos, tmp_path, box_scene, box_nav, box_renderer):

@@ -85,11 +85,14 @@ class NRNSAgent:
         cfg, task = self.config, env.task
         self.task, self.camera = task, task.camera
         self.map = SeenMap(task.camera, env.floor_z, obs["pose"][:2], cfg.map)
-        self.driver = PathDriver(self.map, task, ExpertConfig(lookahead=cfg.lookahead))
+        self.driver = PathDriver(self.map, task, ExpertConfig(lookahead=cfg.lookahead))  # type: ignore[arg-type]
         self.graph = TopoGraph(cfg.ghosts)
         self.goal = prepare_goal(obs["goal"], self.model_config, self.device)
         self.stop = task.action_id("STOP")
-        self.left = task.action_id("TURN_LEFT")
+        left, right = task.action_id("TURN_LEFT"), task.action_id("TURN_RIGHT")
+        if left is None or right is None:
+            raise ValueError(f"task {task.name!r}: the NRNS agent needs TURN_LEFT and TURN_RIGHT actions")
+        self.left, self.right = left, right
         self.node: int | None = None
         self.target: Ghost | None = None
         self.drive_steps = self.unreachable = 0
@@ -130,7 +133,7 @@ class NRNSAgent:
         self.node, new = self.graph.localize(xy, self.node)
         inp = prepare_input(obs["rgb"], obs["depth"], None, None, None, self.model_config, device=self.device,
                             goal_input=self.goal)
-        near_ghosts = dataclasses.replace(cfg.ghosts, ghost_range=cfg.near_range)
+        near_ghosts = dataclasses.replace(cfg.ghosts, ranges=(cfg.near_range,))
         offsets = {False: ghost_offsets(obs["depth"], self.camera, cfg.ghosts),
                    True: ghost_offsets(obs["depth"], self.camera, near_ghosts)}
         with torch.no_grad():
@@ -188,7 +191,7 @@ class NRNSAgent:
             if abs(err) <= 0.5 * self.task.turn_angle + 1e-6:
                 self.target = None
                 return None
-            return self.driver.remember(self.driver.left if err > 0 else self.driver.right, xy)
+            return self.driver.remember(self.left if err > 0 else self.right, xy)
         if not g.turn and np.linalg.norm(g.xy - xy) <= cfg.arrive_radius:
             self.target = None
             return None
@@ -202,7 +205,8 @@ class NRNSAgent:
             self.unreachable = 0
         return self.driver.drive(xy, yaw, g.xy, safe=True)
 
-    def _drop(self, reason: str) -> None:
+    def _drop(self, reason: str) -> int | None:
+        """Give up the target (None: the caller decides again)."""
         self.events.append((self.t, f"drop_{reason}", None))
         self.target = None
         return None

@@ -1,10 +1,11 @@
 """NRNS's topological graph: visited nodes, ghost nodes read from the robot's own depth, and the global choice.
 
 * :func:`ghost_offsets`: the directions a depth frame shows as open. For each bearing of
-  :attr:`GhostConfig.bearings_deg` (inside the camera's 90 degree field of view) a corridor of the robot's width,
-  ``ghost_range + clearance`` long, is checked against the frame's back-projected points between
-  ``obstacle_min_height`` and ``obstacle_max_height`` above the floor; an empty corridor gives a ghost at
-  ``ghost_range`` along that bearing (NRNS: fixed-length edges at fixed angles, kept where the depth shows free space).
+  :attr:`GhostConfig.bearings_deg` (inside the camera's 90 degree field of view) and each range of
+  :attr:`GhostConfig.ranges`, a corridor of the robot's width, ``range + clearance`` long, is checked against the
+  frame's back-projected points between ``obstacle_min_height`` and ``obstacle_max_height`` above the floor; an empty
+  corridor gives a ghost at that range along that bearing (NRNS: fixed-length edges at fixed angles, kept where the
+  depth shows free space).
 * :class:`TopoGraph`: explored nodes (places the robot stood, joined in the order it reached them) and ghost nodes
   (leaves hanging off the node whose view showed them, each with the distance to the goal the distance network
   predicted for it). :meth:`TopoGraph.choose` picks the ghost with the least
@@ -31,11 +32,12 @@ from nue.sim.task import CameraConfig
 class GhostConfig:
     """Where ghost nodes are placed and how the graph merges places (metres, degrees)."""
 
-    bearings_deg: tuple[float, ...] = (-30.0, -15.0, 0.0, 15.0, 30.0)
+    bearings_deg: tuple[float, ...] = (-30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0)
     """Directions tested for free space, relative to the heading (NRNS tests 0, +-15 ... +-60 on its wider view;
     +-30 keeps the ghost and most of its corridor inside the 90 degree camera)."""
-    ghost_range: float = 1.5
-    """Distance of a ghost from the view it was read from (NRNS's edge length, 1.5 m)."""
+    ranges: tuple[float, ...] = (0.75, 1.5)
+    """Distances of the ghosts from the view they were read from (NRNS: one edge length, 1.5 m; the nearer ring
+    finds the openings a 90 degree view shows only close by, e.g. a door beside the robot)."""
     clearance: float = 0.3
     """Free space the corridor must show beyond the ghost."""
     half_width: float = 0.2
@@ -54,8 +56,8 @@ class GhostConfig:
 
 
 def ghost_offsets(depth: np.ndarray, camera: CameraConfig, config: GhostConfig = GhostConfig()) -> np.ndarray:
-    """(K, 2) robot-frame offsets (forward, left) of the ghosts a z-depth frame (H, W[, 1]) metres shows, in the order
-    of ``config.bearings_deg`` (0 = no surface, as the renderer gives for open space)."""
+    """(K, 2) robot-frame offsets (forward, left) of the ghosts a z-depth frame (H, W[, 1]) metres shows, range by
+    range (``config.ranges``), each in the order of ``config.bearings_deg`` (depth 0 = no surface: open space)."""
     z = np.nan_to_num(np.asarray(depth, dtype=np.float64).reshape(camera.height, camera.width))
     rays = pixel_directions(camera)
     forward, left = z, -rays[..., 0] * z
@@ -63,13 +65,13 @@ def ghost_offsets(depth: np.ndarray, camera: CameraConfig, config: GhostConfig =
     hit = (z > 0) & (height >= config.obstacle_min_height) & (height <= config.obstacle_max_height)
     points = np.stack([forward[hit], left[hit]], axis=-1)
     out = []
-    for b in np.radians(config.bearings_deg):
-        d = np.array([math.cos(b), math.sin(b)])
-        along = points @ d
-        across = np.abs(points[:, 0] * d[1] - points[:, 1] * d[0])
-        inside = (along > 0) & (along <= config.ghost_range + config.clearance) & (across <= config.half_width)
-        if not inside.any():
-            out.append(config.ghost_range * d)
+    for r in config.ranges:
+        for b in np.radians(config.bearings_deg):
+            d = np.array([math.cos(b), math.sin(b)])
+            along = points @ d
+            across = np.abs(points[:, 0] * d[1] - points[:, 1] * d[0])
+            if not ((along > 0) & (along <= r + config.clearance) & (across <= config.half_width)).any():
+                out.append(r * d)
     return np.array(out, dtype=np.float64).reshape(-1, 2)
 
 

@@ -1,10 +1,12 @@
 """``nue train --model nrns``: NRNS's distance network trained on the demonstrations (regression, not cloning).
 
 NRNS learns from passive trajectories: each frame is labelled with the geodesic distance to its episode's goal. Here
-the trajectories are the ``nue collect`` demonstrations and a step's label is what remains of its episode's path
-(:func:`path_labels`): the length travelled from the step's pose to the end of the episode plus the final geodesic
-distance the episode record stores. For the geodesic expert (a shortest-path follower) this is the geodesic distance
-up to its comfort detours; for noisy or DAgger demonstrations it over-estimates by the detours taken.
+the trajectories are the ``nue collect`` demonstrations, whose ``geodesic`` array holds that distance per step (the
+simulator's, on the house's navigation grid: training may use the scene, the agent never does). Collections made
+before the array existed are labelled with what remains of their path (:func:`path_labels`): the length travelled
+from the step's pose to the end of the episode plus the final geodesic distance the episode record stores — the
+geodesic distance for a shortest-path expert up to its comfort detours, an over-estimate by every detour of an
+exploring expert or of noise (a warning says so).
 
 A training sample is a view (step ``t``), its goal photo and a point: with probability ``p_here`` the view's own
 position (offset (0, 0), label ``d_t``), else a later step ``s`` of the same episode within ``horizon`` steps and
@@ -19,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -60,6 +63,22 @@ def path_labels(poses: np.ndarray, path_length: float, final_geodesic: float) ->
     return np.maximum(path_length - travelled, 0.0) + final_geodesic
 
 
+def episode_labels(arrays, meta: dict, path) -> np.ndarray:
+    """(T,) distance labels of one episode file: its ``geodesic`` array where finite, else :func:`path_labels`."""
+    record = meta.get("record") or {}
+    fallback = None
+    if "path_length" in record and "final_geodesic" in record:
+        fallback = path_labels(np.asarray(arrays["pose"]), float(record["path_length"]), float(record["final_geodesic"]))
+    if "geodesic" not in arrays:
+        if fallback is None:
+            raise DataError(path, "holds neither per-step geodesic distances nor an episode record to label with")
+        return fallback
+    geo = np.asarray(arrays["geodesic"], dtype=np.float64)
+    if fallback is None or np.isfinite(geo).all():
+        return geo
+    return np.where(np.isfinite(geo), geo, fallback)
+
+
 class DistanceData:
     """A :class:`DemoSet` with per-step distance labels, served as (view, offset, label) batches."""
 
@@ -67,13 +86,17 @@ class DistanceData:
         self.demos, self.sampling = demos, sampling
         self.labels: list[np.ndarray] = []
         self.poses: list[np.ndarray] = []
+        self.path_labelled = 0
+        """Episodes without a stored ``geodesic`` array, labelled by :func:`path_labels`."""
         for arrays, meta, path in zip(demos.episodes, demos.metas, demos.files):
-            record = meta.get("record") or {}
-            if "path_length" not in record or "final_geodesic" not in record:
-                raise DataError(path, "holds no episode record (path length, final geodesic) to label distances with")
             poses = np.asarray(arrays["pose"], dtype=np.float64)
             self.poses.append(poses)
-            self.labels.append(path_labels(poses, float(record["path_length"]), float(record["final_geodesic"])))
+            self.labels.append(episode_labels(arrays, meta, path))
+            self.path_labelled += "geodesic" not in arrays
+        if self.path_labelled:
+            warnings.warn(f"{demos.root}: {self.path_labelled} of {demos.n_episodes} episodes store no per-step geodesic "
+                          "distance (collected before it was stored); labelled by the path still to travel, which "
+                          "over-estimates the detours of exploring or noisy demonstrations", stacklevel=2)
 
     def draw(self, rng: np.random.Generator, n: int, p_here: float | None = None):
         """``n`` samples: (episodes (n,), steps (n,), offsets (n, 2) forward/left metres, labels (n,) metres)."""
