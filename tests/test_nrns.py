@@ -211,6 +211,8 @@ def test_train_and_eval_nrns_end_to_end(tiny_demos, tmp_path, box_scene, box_nav
     records = [json.loads(line) for line in out.read_text().splitlines()]
     assert len(records) == 2 and {r["method"] for r in records} == {"nrns"}
     assert all(0 < r["steps"] <= 40 for r in records)
+    graph = records[0]["extra"]["nrns"]  # the record carries the agent's graph
+    assert len(graph["nodes"]) >= 1 and graph["events"] and graph["events"][0][1] in ("subgoal", "goal_switch")
 
 
 @pytest.fixture(scope="module", autouse=True)

@@ -32,6 +32,7 @@ from nue.output_lock import hold_output
 from nue.policy.agent import ExpertAgent, RandomAgent
 from nue.policy.checkpoint import PolicyHeader, check_compatible, load_agent, load_header
 from nue.policy.last_mile import SLING_PREFIX, LastMileAgent, LastMileConfig
+from nue.policy.nrns_agent import NRNSAgent
 from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
 from nue.scene.navgrid import NavGrid
@@ -361,7 +362,9 @@ def eval_episode(job: Job) -> dict:
     if isinstance(getattr(agent, "expert", None), ExploringExpert):
         extra["explorer"] = dict(agent.expert.stats)
     if isinstance(agent, LastMileAgent):
-        extra["last_mile"] = agent.summary(goal_xy=env.goal_xy)  # the true goal: for the record's analysis only
+        extra["last_mile"] = agent.summary(goal_xy=env.goal_xy)
+    if isinstance(agent, NRNSAgent):
+        extra["nrns"] = agent.summary()  # its graph and decisions  # the true goal: for the record's analysis only
     if tracker is not None:
         extra["coverage"] = [round(float(a), 3) for a in tracker.areas]
         if tracker.region is not None:

@@ -8,7 +8,7 @@ At each decision (episode start, a subgoal reached or given up) the agent
    (:class:`nue.policy.nrns_model.DistanceNetwork`, offset (0, 0)); with a STOP action it stops below
    ``stop_distance``; below ``switch_distance`` it *switches to the goal*: ghosts are read from this view at the short
    ``near_range`` and the one predicted nearest the goal is taken without travel cost (NRNS switches to a separate
-   goal-location network there; see ``docs/baselines.md``);
+   goal-location network there; see ``docs/nrns.md``);
 3. else adds the ghosts its depth shows (:func:`nue.policy.nrns_graph.ghost_offsets`, each with its predicted
    distance) and, at a new node, turn ghosts; then chooses the ghost of least predicted distance + travel cost;
 4. drives there with a local controller on its own depth-built map (:class:`nue.policy.seen_map.SeenMap`, steered
@@ -212,7 +212,12 @@ class NRNSAgent:
         return None
 
     def summary(self) -> dict:
-        """The graph and decisions of the episode so far (for records and viewers)."""
-        return {"nodes": self.graph.graph.number_of_nodes(), "edges": self.graph.graph.number_of_edges(),
-                "ghosts_left": len(self.graph.ghosts), "last_distance": self.last_distance,
+        """The record's ``extra["nrns"]``: the graph (explored nodes' world (x, y), edges, the ghosts left with their
+        predicted distances), the last predicted distance and the decisions ``[step, what, detail]``."""
+        g = self.graph.graph
+        r = lambda v: round(float(v), 3)  # noqa: E731
+        return {"nodes": {str(n): [r(d["xy"][0]), r(d["xy"][1])] for n, d in g.nodes(data=True)},
+                "edges": [[int(a), int(b)] for a, b in g.edges],
+                "ghosts": [[r(h.xy[0]), r(h.xy[1]), r(h.distance), int(h.turn)] for h in self.graph.ghosts.values()],
+                "last_distance": None if self.last_distance is None else r(self.last_distance),
                 "events": [[s, w, d] for s, w, d in self.events]}

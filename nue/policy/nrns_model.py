@@ -11,7 +11,7 @@ a distance >= 0 (softplus)::
 
 NRNS predicts the distance of its *ghost* nodes (points the robot has not visited) with a graph network over the
 explored nodes' features; here a ghost's distance is read from the one view that showed it, at the ghost's offset
-(see ``docs/baselines.md``). The network picks no actions: :class:`nue.policy.nrns_agent.NRNSAgent` acts with it,
+(see ``docs/nrns.md``). The network picks no actions: :class:`nue.policy.nrns_agent.NRNSAgent` acts with it,
 so :meth:`forward` refuses to run (the training loop is :mod:`nue.train.nrns_train`).
 """
 
