@@ -147,7 +147,8 @@ def distance_errors(model: DistanceNetwork, data: DistanceData, device="cpu", se
 def train_distance(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> TrainResult:
     """Train the distance network of ``cfg.model`` (kind ``nrns``) on ``cfg.data``; checkpoints as behaviour cloning's
     (``last.pt``, ``best.pt`` by held-out ``distance_mae``, or by training loss without held-out episodes).
-    One process, float32 (``precision``, ``compile`` and closed-loop selection do not apply)."""
+    One process, float32 (``precision``, ``compile`` and closed-loop selection do not apply); ``time_budget_s`` counts
+    ``budget_clock`` as in behaviour cloning."""
     with hold_output(cfg.out):
         return _train(cfg, resume, progress)
 
@@ -203,7 +204,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> TrainResult:
 
     model.train()
     bar = tqdm(total=cfg.steps, initial=step, desc=f"train {model_cfg.name}", disable=not progress)
-    t_start = time.perf_counter() - elapsed
+    clock_s = time.process_time if cfg.budget_clock == "cpu" else time.perf_counter
+    t_start = clock_s() - elapsed
     first_step = step
     while step < cfg.steps and not (cfg.time_budget_s > 0 and elapsed >= cfg.time_budget_s):
         ep, t, offsets, labels = data.draw(rng, cfg.batch_size)
@@ -216,7 +218,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> TrainResult:
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
         opt.step()
-        elapsed = clock["elapsed"] = time.perf_counter() - t_start
+        elapsed = clock["elapsed"] = clock_s() - t_start
         sched.step()
         step += 1
         bar.update(1)
