@@ -118,7 +118,8 @@ class NRNSAgent:
             action = self._drive(pose)
             if action is not None:
                 return action
-        self.events.append((self.t, "no_ghost", None))
+        if not self.events or self.events[-1][1] != "no_ghost":  # once per run of such steps
+            self.events.append((self.t, "no_ghost", None))
         return self.driver.remember(self.left, pose[:2])  # nothing left to explore: look around
 
     def executed(self, action: int) -> None:
