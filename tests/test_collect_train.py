@@ -600,8 +600,10 @@ def test_goal_head_model_learns_its_labels_and_reports_them_at_decision_time(ref
         with torch.no_grad():
             return float(goal_head_loss(model(batch.inp), batch))
 
-    before, after = head_loss(init), head_loss(load_checkpoint(res.last)["model_state"])
+    last = load_checkpoint(res.last)
+    before, after = head_loss(init), head_loss(last["model_state"])
     assert after < 0.7 * before, (before, after)
+    assert {"goal_view_auroc", "goal_view_recall", "goal_log_distance_error"} <= set(last["metrics"])
     env = make_env(houses[0], "paper", max_steps=3)
     agent, memory = load_agent(res.last, env.task)
     run_episode(env, agent, memory=memory, seed=0)

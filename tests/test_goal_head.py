@@ -43,6 +43,18 @@ def test_goal_head_loss_by_hand():
     assert float(goal_head_loss(out, batch)) == pytest.approx(bce0, rel=1e-6)
 
 
+def test_auroc_and_goal_head_scores_by_hand():
+    from nue.policy.accuracy import auroc, goal_head_scores
+
+    assert auroc(np.array([0.1, 0.4, 0.35, 0.8]), np.array([0, 0, 1, 1])) == 0.75
+    assert auroc(np.array([0.5, 0.5]), np.array([0, 1])) == 0.5 and math.isnan(auroc(np.ones(3), np.ones(3)))
+    s = goal_head_scores(np.array([0.9, 0.2, 0.6, 0.1]), np.log(np.array([2.0, 1.0, 1.0, 5.0])),
+                         np.array([True, True, False, False]), np.array([1.0, 1.0, 3.0, 3.0]),
+                         np.radians(np.array([10.0, 30.0, 0.0, 0.0])))
+    assert s["goal_view_auroc"] == 0.75 and s["goal_view_precision"] == 0.5 and s["goal_view_recall"] == 0.5
+    assert s["goal_log_distance_error"] == pytest.approx(math.log(2.0) / 2) and s["angle_error_in_view_deg"] == pytest.approx(20.0)
+
+
 def _input(cfg: ModelConfig, b: int) -> PolicyInput:
     h, w = cfg.map_size
     return PolicyInput(rgbd=torch.rand(b, 4, *cfg.frame_size), goal=torch.rand(b, 3, *cfg.frame_size),
@@ -152,3 +164,39 @@ def episodes_dir(tmp_path_factory, box_scene, box_nav, box_renderer):
     eps = generate_episodes(box_scene, "paper", EpisodeGenConfig(per_bin=1), seed=4, navgrid=box_nav, renderer=box_renderer)
     save_episodes(d / "box_room.json", eps[:1], "paper")
     return d
+
+
+def test_goal_match_learns_to_tell_a_shifted_view_of_the_same_scene_from_another_scene():
+    """f_match separates 'the goal shows this scene' (the frame shifted by a few pixels) from 'another scene' after a
+    short training on random blob images; the best-match maps are cosines, in [-1, 1]."""
+    from nue.policy.goal_match import GoalMatch
+
+    torch.manual_seed(0)
+    gen = torch.Generator().manual_seed(1)
+
+    def scenes(n):
+        x = torch.rand(n, 3, 8, 10, generator=gen)
+        return torch.nn.functional.interpolate(x, size=(48, 64), mode="bilinear", align_corners=False)
+
+    def pairs(n):
+        a, b = scenes(n), scenes(n)
+        shift = torch.roll(a, shifts=(3, 5), dims=(2, 3))
+        y = (torch.rand(n, generator=gen) < 0.5).float()
+        goal = torch.where(y[:, None, None, None] > 0, shift, b)
+        return a, goal, y
+
+    net = GoalMatch(8)
+    clf = torch.nn.Linear(8, 1)
+    opt = torch.optim.Adam([*net.parameters(), *clf.parameters()], lr=3e-3)
+    for _ in range(150):
+        a, g, y = pairs(32)
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(clf(net(a, g))[:, 0], y)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    a, g, y = pairs(200)
+    with torch.no_grad():
+        acc = float(((clf(net(a, g))[:, 0] > 0).float() == y).float().mean())
+        m_goal, m_frame = net.correlation(a, g)
+    assert acc > 0.85, acc
+    assert m_goal.shape == (200, 48) and m_frame.shape == (200, 6, 8) and float(m_frame.abs().max()) <= 1.0 + 1e-5

@@ -10,6 +10,8 @@ collections made after they were added), then scores it on the collection's held
   own auxiliary angle head), against the same with the true distance (angle error alone);
 - with ``--features cat``: the same head on [f_cog, f_u, f_p] instead (what a head on the whole input could do).
 
+A checkpoint whose model already has the head (``nue_goal`` trained end to end) is scored as it is with ``--steps 0``.
+
 Writes the probe's checkpoint (the trunk's weights unchanged, the new head trained; an ordinary ``nue_goal``
 checkpoint that ``nue eval -c commit+name=path`` runs) and a JSON of the scores.
 
@@ -29,22 +31,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from nue.policy.accuracy import auroc
 from nue.policy.blocks import mlp
 from nue.policy.checkpoint import load_checkpoint, save_checkpoint
 from nue.policy.config import ModelConfig
 from nue.policy import build_model
 from nue.train.dataset import BufferSampler, DemoSet
-
-
-def auroc(score: np.ndarray, label: np.ndarray) -> float:
-    """Area under the ROC curve by ranks (ties averaged): P(score of a positive > score of a negative)."""
-    from scipy.stats import rankdata
-    pos = label.astype(bool)
-    n1, n0 = int(pos.sum()), int((~pos).sum())
-    if n1 == 0 or n0 == 0:
-        return float("nan")
-    r = rankdata(score)
-    return float((r[pos].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
 
 
 def features(model, inp, which: str) -> torch.Tensor:
@@ -71,10 +63,12 @@ def main() -> None:
 
     ckpt = load_checkpoint(args.checkpoint)
     base_cfg = ModelConfig.from_dict(ckpt["model_config"])
-    cfg = base_cfg.replace(name=f"{base_cfg.name}_goal", goal_head=True)
+    trained = base_cfg.goal_head  # a model trained with its head: scored as it is (``--steps 0``)
+    cfg = base_cfg if trained else base_cfg.replace(name=f"{base_cfg.name}_goal", goal_head=True)
     model = build_model(cfg)
     missing, unexpected = model.load_state_dict(ckpt["model_state"], strict=False)
     assert not unexpected and all(k.startswith("goal_head.") for k in missing), (missing, unexpected)
+    assert not (trained and missing), missing
     model.eval()
     for p in model.parameters():
         p.requires_grad_(False)
@@ -159,7 +153,7 @@ def main() -> None:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(f".{args.features}.json").write_text(json.dumps(scores, indent=1) + "\n")
-    if args.features == "cog":
+    if args.features == "cog" and not trained:
         payload = {k: v for k, v in ckpt.items() if k != "format"}
         payload["model_config"] = cfg.to_dict()
         payload["model_state"] = model.state_dict()
