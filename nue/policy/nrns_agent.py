@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from nue.policy.inputs import prepare_goal, prepare_input
+from nue.policy.inputs import PolicyInput, prepare_goal, prepare_input
 from nue.policy.nrns_graph import Ghost, GhostConfig, TopoGraph, ghost_offsets
 from nue.policy.nrns_model import DistanceNetwork
 from nue.policy.seen_map import SeenMap, SeenMapConfig
@@ -78,6 +78,10 @@ class NRNSAgent:
         self.device = torch.device(device)
         self.git_commit = git_commit
         """The commit the weights were trained at ('' unknown); recorded with evaluation records."""
+        self.last_input: PolicyInput | None = None
+        """The network's input at the last decision (as :class:`nue.policy.agent.PolicyAgent` keeps its last one)."""
+        self.last_aux: float | None = None
+        """Always None: the distance network has no goal-angle head (the attribute readers of agents expect)."""
 
     # -- the Agent protocol ---------------------------------------------------------------------
     def reset(self, env, obs, seed: int = 0) -> None:
@@ -132,8 +136,8 @@ class NRNSAgent:
         cfg = self.config
         xy, yaw = pose[:2], float(pose[2])
         self.node, new = self.graph.localize(xy, self.node)
-        inp = prepare_input(obs["rgb"], obs["depth"], None, None, None, self.model_config, device=self.device,
-                            goal_input=self.goal)
+        inp = self.last_input = prepare_input(obs["rgb"], obs["depth"], None, None, None, self.model_config,
+                                              device=self.device, goal_input=self.goal)
         near_ghosts = dataclasses.replace(cfg.ghosts, ranges=(cfg.near_range,))
         offsets = {False: ghost_offsets(obs["depth"], self.camera, cfg.ghosts),
                    True: ghost_offsets(obs["depth"], self.camera, near_ghosts)}
