@@ -46,6 +46,9 @@ TABLE_ONE = {
     "nue": (True, True, True),
 }
 
+ACTING_PRESETS = [name for name, cfg in MODEL_PRESETS.items() if cfg.kind != "nrns"]
+"""Presets whose network picks actions (NRNS's distance network is tested in tests/test_nrns.py)."""
+
 
 def random_input(config: ModelConfig, batch: int, gen: torch.Generator, time: int | None = None) -> PolicyInput:
     """A random PolicyInput at the config's sizes, with a leading time dim if ``time`` is given."""
@@ -260,7 +263,7 @@ def test_config_validation_roundtrip_and_task():
 
 
 @pytest.mark.parametrize("map_size", [(45, 60), (90, 120)])
-@pytest.mark.parametrize("name", list(MODEL_PRESETS))
+@pytest.mark.parametrize("name", ACTING_PRESETS)
 def test_output_shapes(name, map_size):
     cfg = get_model_config(name).replace(map_height=map_size[0], map_width=map_size[1])
     cfg = cfg.for_task(TASK_PRESETS["habitat"])
@@ -291,7 +294,7 @@ def test_aux_head_works_on_baselines_too():
     assert out.aux_angle.shape == (2,)
 
 
-@pytest.mark.parametrize("name", list(MODEL_PRESETS))
+@pytest.mark.parametrize("name", ACTING_PRESETS)
 def test_gradients_reach_every_enabled_parameter(name):
     cfg = get_model_config(name)
     torch.manual_seed(0)

@@ -33,6 +33,7 @@ from nue.policy.agent import ExpertAgent, RandomAgent
 from nue.policy.checkpoint import PolicyHeader, check_compatible, load_agent, load_header
 from nue.policy.commit import COMMIT_PREFIX
 from nue.policy.last_mile import COMMIT_LAST_MILE, SLING_PREFIX, LastMileAgent, LastMileConfig
+from nue.policy.nrns_agent import NRNSAgent
 from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
 from nue.scene.navgrid import NavGrid
@@ -377,6 +378,8 @@ def eval_episode(job: Job) -> dict:
         extra["explorer"] = dict(agent.expert.stats)
     if isinstance(agent, LastMileAgent):
         extra["last_mile"] = agent.summary(goal_xy=env.goal_xy)  # the true goal: for the record's analysis only
+    if isinstance(agent, NRNSAgent):
+        extra["nrns"] = agent.summary()  # its graph and decisions
     if tracker is not None:
         extra["coverage"] = [round(float(a), 3) for a in tracker.areas]
         if tracker.region is not None:

@@ -18,9 +18,11 @@ from nue.policy.baselines import FRPolicy, NavA3CPolicy
 from nue.policy.blocks import CBAM, ChannelAttention, ConvBranch, ResidualBlock, SpatialAttention, SubsampledPointwiseConv
 from nue.policy.config import ABLATION_PRESETS, MODEL_PRESETS, ModelConfig, get_model_config
 from nue.policy.inputs import PolicyInput, prepare_goal, prepare_input
+from nue.policy.nrns_model import DistanceNetwork
 from nue.policy.nue_model import FusionHead, NUEPolicy
 
-_KINDS: dict[str, type[PolicyModel]] = {"nue": NUEPolicy, "fr": FRPolicy, "nav_a3c": NavA3CPolicy}
+_KINDS: dict[str, type[PolicyModel]] = {"nue": NUEPolicy, "fr": FRPolicy, "nav_a3c": NavA3CPolicy,
+                                     "nrns": DistanceNetwork}
 
 
 def build_model(config: ModelConfig | str) -> PolicyModel:
@@ -30,7 +32,7 @@ def build_model(config: ModelConfig | str) -> PolicyModel:
 
 
 __all__ = [
-    "ABLATION_PRESETS", "CBAM", "ChannelAttention", "ConvBranch", "FRPolicy", "FusionHead", "MODEL_PRESETS",
+    "ABLATION_PRESETS", "CBAM", "ChannelAttention", "ConvBranch", "DistanceNetwork", "FRPolicy", "FusionHead", "MODEL_PRESETS",
     "ModelConfig", "NUEPolicy", "NavA3CPolicy", "PolicyInput", "PolicyModel", "PolicyOutput", "ResidualBlock",
     "SpatialAttention", "State", "SubsampledPointwiseConv", "angle_l1_loss", "build_model", "choose_actions", "detach_state", "get_model_config",
     "prepare_goal", "prepare_input", "wrap_angle_t",

@@ -33,6 +33,8 @@ from nue.nerf.online import OnlineNeRF
 from nue.policy import PolicyModel, build_model
 from nue.policy.agent import PolicyAgent
 from nue.policy.config import ModelConfig
+from nue.policy.nrns_agent import NRNSAgent
+from nue.policy.nrns_model import DistanceNetwork
 from nue.sim.task import CameraConfig, TaskConfig
 
 FORMAT = "nue-checkpoint/1"
@@ -223,19 +225,23 @@ def _load_policy(path, device) -> tuple[PolicyModel, PolicyHeader, dict]:
 
 
 def load_agent(checkpoint, task: TaskConfig, device: str | torch.device = "cpu", *, scenes: dict[str, str] | None = None,
-               memory: bool | None = None, greedy: bool | None = None) -> tuple[PolicyAgent, OnlineNeRF | None]:
+               memory: bool | None = None, greedy: bool | None = None
+               ) -> tuple[PolicyAgent | NRNSAgent, OnlineNeRF | None]:
     """The policy agent of a checkpoint and its online NeRF memory (the stored config and fixed initial
     weights), both on ``device``, after :func:`check_compatible` with ``task`` and ``scenes``.
 
     ``memory``: None = a memory only when the model reads its maps, True = always (figures), False = never
     (the caller brings its own). ``greedy``: None = the task's rule (``task.greedy``). The agent's
-    ``git_commit`` is the commit the weights were trained at.
+    ``git_commit`` is the commit the weights were trained at. An NRNS distance network (kind ``nrns``) gives its
+    graph agent (:class:`nue.policy.nrns_agent.NRNSAgent`, deterministic; ``greedy`` does not apply).
     """
     model, header, ckpt = _load_policy(checkpoint, device)
     check_compatible(header, checkpoint, task=task, scenes=scenes)
     nerf = None
     if memory or (memory is None and model.config.uses_memory_maps):
         nerf = _memory(ckpt, header, checkpoint, task.camera, device)
+    if isinstance(model, DistanceNetwork):  # NRNS acts through its graph agent, not from action logits
+        return NRNSAgent(model, device=device, git_commit=header.git_commit), nerf
     agent = PolicyAgent(model, greedy=task.greedy if greedy is None else greedy, device=device,
                         git_commit=header.git_commit)
     return agent, nerf

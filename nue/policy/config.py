@@ -17,6 +17,7 @@ preset          f_u    AT     CBAM   note
 ``nue_paper``   yes    yes    yes    full model in the paper's layout (goal only through f_cog)
 ``fr``          --     no     --     fully reactive: RGB-D + goal -> CNN -> policy
 ``nav_a3c``     --     no     --     same encoder as ``fr`` + LSTM memory
+``nrns``        --     no     --     NRNS's distance network (``fr``'s encoder + offset); acts through a graph
 ==============  =====  =====  =====  ==========================================
 
 The five ``abl_*`` rows are ``nue`` with components switched off, so they also feed the goal to f_p:
@@ -33,7 +34,7 @@ from typing import Any
 from nue.errors import ConfigError
 from nue.sim.task import TaskConfig
 
-MODEL_KINDS = ("nue", "fr", "nav_a3c")
+MODEL_KINDS = ("nue", "fr", "nav_a3c", "nrns")
 
 
 @dataclass(frozen=True)
@@ -43,7 +44,8 @@ class ModelConfig:
     name: str = "nue"
     """Preset name, recorded in checkpoints and result tables."""
     kind: str = "nue"
-    """Model family: ``nue`` (NeRF-memory policy), ``fr`` (fully reactive) or ``nav_a3c`` (CNN + LSTM)."""
+    """Model family: ``nue`` (NeRF-memory policy), ``fr`` (fully reactive), ``nav_a3c`` (CNN + LSTM) or ``nrns`` (the
+    distance network of NRNS's graph agent, :mod:`nue.policy.nrns_agent`; trained by :mod:`nue.train.nrns_train`)."""
     use_uncertainty: bool = True
     """NUE only: include the exploration branch f_u on the uncertainty map I_u."""
     use_aux: bool = True
@@ -128,6 +130,8 @@ class ModelConfig:
         if self.kind != "nue" and (self.use_uncertainty or self.use_cbam or self.goal_in_perception):
             raise ConfigError(where, f"use_uncertainty / use_cbam / goal_in_perception apply to kind 'nue' only, "
                                      f"not {self.kind!r}")
+        if self.kind == "nrns" and self.use_aux:
+            raise ConfigError(where, "kind 'nrns' has no auxiliary angle head (use_aux must be False)")
         if self.num_actions < 2:
             raise ConfigError(where, f"num_actions must be >= 2, got {self.num_actions}")
         sizes = (self.map_height, self.map_width, self.frame_height, self.frame_width, *self.map_grid,
@@ -246,6 +250,8 @@ MODEL_PRESETS: dict[str, ModelConfig] = {
                         goal_in_perception=False),
     "nav_a3c": _NUE.replace(name="nav_a3c", kind="nav_a3c", use_uncertainty=False, use_aux=False, use_cbam=False,
                         goal_in_perception=False),
+    "nrns": _NUE.replace(name="nrns", kind="nrns", use_uncertainty=False, use_aux=False, use_cbam=False,
+                         goal_in_perception=False),
 }
 """Named model configs. The five ``abl_*`` rows and ``nue`` are paper Table I's ablation block."""
 

@@ -49,7 +49,7 @@ class TrainConfig:
     out: str = "runs/nue"
     """Run folder: checkpoints and TensorBoard logs."""
     model: str = "nue"
-    """Model preset (``nue``, an ablation, ``fr``, ``nav_a3c``)."""
+    """Model preset (``nue``, an ablation, ``fr``, ``nav_a3c``, ``nrns``)."""
     steps: int = 3000
     """Optimiser steps."""
     batch_size: int = 64
@@ -248,7 +248,11 @@ FAIL_AT_ENV = "NUE_FAIL_AT_STEP"
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True, select: Selector | None = None) -> TrainResult:
     """Run (or resume from ``out/last.pt``) behaviour cloning; rank 0 holds the run folder (one writer per output).
     With ``cfg.select == "closed_loop"``, ``select`` (:data:`Selector`) picks ``best.pt`` among the snapshots at the
-    end; :class:`ConfigError` if it is not given."""
+    end; :class:`ConfigError` if it is not given. A model of kind ``nrns`` trains by :mod:`nue.train.nrns_train`."""
+    if get_model_config(cfg.model).kind == "nrns":  # NRNS's distance network: regression, not cloning
+        from nue.train.nrns_train import train_distance
+
+        return train_distance(cfg, resume, progress)
     if cfg.select == "closed_loop" and select is None:
         raise ConfigError("train config", "select 'closed_loop' needs the closed-loop selector "
                                           "(select=nue.selection.select_run)")

@@ -4,8 +4,9 @@ running exactly as at test time; one checksummed, memory-mappable file per episo
 Per step an episode file holds what the policy consumes: ``rgbd`` (T, 4, fh, fw) (already normalised by
 ``prepare_input``; 8-bit codes), ``i_u`` (T, 1, h, w) float16 and ``i_cog`` (T, 64, h, w) (4-bit codes) —
 the compact storage of :class:`~nue.train.compact.StepStorage`, older collections hold float16 — the
-expert's ``action`` label and the ``executed`` action (T,) int8, ``goal_angle`` (T,) float32 and
-``pose`` (T, 3) float32; per episode the goal photo at map and frame size (3, ., .) float16.
+expert's ``action`` label and the ``executed`` action (T,) int8, ``goal_angle`` (T,) float32,
+``pose`` (T, 3) float32 and ``geodesic`` (T,) float32 (the geodesic distance to the goal, NRNS's training label;
+collections made before it existed lack it); per episode the goal photo at map and frame size (3, ., .) float16.
 Episodes are written by the driver as they finish (temporary file + rename); rerunning the same
 command skips finished episodes, so a killed collection resumes without duplicates. What the folder
 holds is described by its manifest (:mod:`nue.train.manifest`); each episode travels to its worker as
@@ -333,6 +334,7 @@ class DemoRecorder:
             "goal_distance": float(s.info["euclidean_distance"]),
             "goal_in_view": self._goal_in_view(s),
             "pose": np.asarray(s.obs["pose"], dtype=np.float32),
+            "geodesic": float(s.info["geodesic_distance"]),
         })
         if self.goal is None:  # the goal photo as the map-size (NUE) and frame-size (baselines) inputs see it
             frame_cfg = get_model_config("fr").replace(num_actions=cfg.num_actions, frame_height=cfg.frame_height,
@@ -362,6 +364,7 @@ class DemoRecorder:
             "goal_distance": np.array([x["goal_distance"] for x in st], dtype=np.float32),
             "goal_in_view": np.array([x["goal_in_view"] for x in st], dtype=np.int8),
             "pose": np.stack([x["pose"] for x in st]),
+            "geodesic": np.array([x["geodesic"] for x in st], dtype=np.float32),
             **({"panorama": np.stack(self.panorama)} if self.panorama else {}),
             **self.goal,
         }
