@@ -148,6 +148,11 @@ def main() -> None:
         "median_position_error_true_distance_m_in_view": round(float(np.median(e_angle[y])), 3),
         "median_position_error_m_predicted_in_view": round(float(np.median(e_full[pred])), 3) if pred.any() else None,
         "train_seconds": round(time.time() - t0, 1),
+        "by_threshold": {f"{q:g}": {"precision": round(float(((p >= q) & y).sum() / max(int((p >= q).sum()), 1)), 4),
+                                    "recall": round(float(((p >= q) & y).sum() / max(int(y.sum()), 1)), 4),
+                                    "median_position_error_m": (round(float(np.median(e_full[p >= q])), 3)
+                                                                if (p >= q).any() else None)}
+                         for q in (0.5, 0.7, 0.8, 0.9, 0.95)},
     }
     print(json.dumps(scores, indent=1))
     out = Path(args.out)
