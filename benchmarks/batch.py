@@ -52,9 +52,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--checkpoint", default=str(ROOT / "checkpoints/nue.pt"))
     ap.add_argument("--batch", type=int, default=8)
-    ap.add_argument("--houses", type=int, default=2)
+    ap.add_argument("--houses", type=int, default=4)
     ap.add_argument("--episodes", type=int, default=8, help="Episodes per house.")
-    ap.add_argument("--max-steps", type=int, default=30)
+    ap.add_argument("--max-steps", type=int, default=20)
     ap.add_argument("--scenes-root", default=str(ROOT / "data/scenes"))
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -86,13 +86,47 @@ def main() -> None:
         rows = [run(1, "b1", args.episodes), run(args.batch, "bB", args.episodes), run(1, "b1again", args.episodes)]
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    forward = forward_ms_per_row(args.checkpoint, args.batch)
     for r in rows:
         print(json.dumps(r))
     b1 = (rows[0]["ms_per_episode_step"] + rows[2]["ms_per_episode_step"]) / 2
     ratio = round(b1 / rows[1]["ms_per_episode_step"], 3)
     print(f"B=1 (mean of the two runs) / B={args.batch}: {ratio}x episode-steps per second")
+    print(f"policy forward alone, ms per row: {json.dumps(forward)}")
     write_result("batch", {"checkpoint": args.checkpoint, "houses": args.houses, "episodes_per_house": args.episodes,
-                           "max_steps": args.max_steps, "runs": rows, "speedup": ratio})
+                           "max_steps": args.max_steps, "runs": rows, "speedup": ratio, "forward_ms_per_row": forward})
+
+
+def forward_ms_per_row(checkpoint: str, batch: int, reps: int = 20) -> dict:
+    """The checkpoint's model forward alone on random inputs of 1 and ``batch`` rows: median ms per row
+    (interleaved, ``reps`` times each), with the load average."""
+    import numpy as np
+
+    from nue.policy.checkpoint import load_agent, load_header
+    from nue.sim.task import get_task
+
+    agent, memory = load_agent(checkpoint, get_task(load_header(checkpoint).task))
+    cam, mem = get_task(load_header(checkpoint).task).camera, memory.config if memory is not None else None
+    rng = np.random.default_rng(0)
+
+    class Maps:
+        i_u = rng.random((1, mem.map_height, mem.map_width), dtype=np.float32) if mem else None
+        i_cog = rng.standard_normal((64, mem.map_height, mem.map_width), dtype=np.float32) if mem else None
+        panorama = None
+
+    obs = {"rgb": rng.integers(0, 255, (cam.height, cam.width, 3), dtype=np.uint8),
+           "depth": rng.random((cam.height, cam.width, 1), dtype=np.float32) * 3,
+           "goal": rng.integers(0, 255, (cam.height, cam.width, 3), dtype=np.uint8), "pose": np.zeros(3)}
+    agents = [agent.twin() for _ in range(batch)]
+    for a in agents:
+        a.reset(None, obs, 0)
+    times: dict[int, list[float]] = {1: [], batch: []}
+    for _ in range(reps):
+        for n in (1, batch):
+            t = time.perf_counter()
+            PolicyAgent.act_batch(agents[:n], [obs] * n, [Maps()] * n, rows=n)
+            times[n].append((time.perf_counter() - t) * 1000 / n)
+    return {f"rows_{n}": round(float(np.median(v)), 2) for n, v in times.items()} | {"load": round(os.getloadavg()[0], 2)}
 
 
 if __name__ == "__main__":
