@@ -1,10 +1,10 @@
 """Lock-step batch benchmark: ms per episode-step of a real ``nue eval`` (in this process, one worker) of a checkpoint
-at ``--batch 1`` and ``--batch B``, and of the policy's part of it (``PolicyAgent.act`` / ``act_batch``).
+at ``--batch 1`` and ``--batch B`` (planning left out), and of the policy's part of it (``PolicyAgent.act`` / ``act_batch``).
 
 The runs go B = 1, B, B = 1 again (the machine is shared: the second B = 1 run shows the drift), each on the same
 validation episodes (the first ``--episodes`` of ``--houses`` val houses, cut at ``--max-steps`` steps) into a
-fresh records file; the worker's caches (envs, policy, slot memories) are warmed by a one-episode run of each batch
-size first. Episode-steps are the records' steps; the load average is read before and after each run. Memory:
+fresh records file; the worker's caches (envs, policy, slot memories) are warmed by a run of one episode per house
+at batch size B first. Episode-steps are the records' steps; the load average is read before and after each run. Memory:
 :class:`nue.nerf.slots.MemoryList` (per-slot memories; only the policy forward is batched). Writes
 ``benchmarks/results/batch.json``.
 
@@ -31,6 +31,7 @@ import torch  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import write_result  # noqa: E402
 
+from nue.evaluate import runner  # noqa: E402
 from nue.evaluate.runner import EvalConfig, run_eval  # noqa: E402
 from nue.policy.agent import PolicyAgent  # noqa: E402
 
@@ -38,13 +39,16 @@ ROOT = Path(__file__).resolve().parent.parent
 POLICY_S = [0.0]
 
 
-def _timed(fn):
+PLAN_S = [0.0]
+
+
+def _timed(fn, total: list[float] = POLICY_S):
     def wrapper(*args, **kwargs):
         t = time.perf_counter()
         try:
             return fn(*args, **kwargs)
         finally:
-            POLICY_S[0] += time.perf_counter() - t
+            total[0] += time.perf_counter() - t
     return wrapper
 
 
@@ -52,13 +56,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--checkpoint", default=str(ROOT / "checkpoints/nue.pt"))
     ap.add_argument("--batch", type=int, default=8)
-    ap.add_argument("--houses", type=int, default=4)
+    ap.add_argument("--houses", type=int, default=3)
     ap.add_argument("--episodes", type=int, default=8, help="Episodes per house.")
-    ap.add_argument("--max-steps", type=int, default=20)
+    ap.add_argument("--max-steps", type=int, default=12)
     ap.add_argument("--scenes-root", default=str(ROOT / "data/scenes"))
     args = ap.parse_args()
     torch.set_num_threads(1)
     PolicyAgent.act = _timed(PolicyAgent.act)  # type: ignore[method-assign]
+    runner.plan_eval = _timed(runner.plan_eval, PLAN_S)
     PolicyAgent.act_batch = staticmethod(_timed(PolicyAgent.act_batch))  # type: ignore[method-assign]
     tmp = Path(tempfile.mkdtemp(prefix="nue-batch-bench-"))
     try:
@@ -70,25 +75,24 @@ def main() -> None:
 
         def run(batch: int, name: str, max_episodes: int) -> dict:
             cfg = EvalConfig(**{**base.__dict__, "batch": batch, "max_episodes": max_episodes})
-            POLICY_S[0] = 0.0
+            POLICY_S[0] = PLAN_S[0] = 0.0
             load0 = os.getloadavg()[0]
             t = time.perf_counter()
             out = run_eval([f"nue={args.checkpoint}"], tmp / f"{name}.jsonl", cfg, progress=False)
-            wall = time.perf_counter() - t
+            wall = time.perf_counter() - t - PLAN_S[0]  # the episodes only, not the planning (houses, checks)
             steps = sum(json.loads(line)["steps"] for line in out.read_text().splitlines())
-            return {"batch": batch, "episodes": len(out.read_text().splitlines()), "episode_steps": steps,
-                    "wall_s": round(wall, 2), "ms_per_episode_step": round(1000 * wall / steps, 2),
-                    "policy_ms_per_episode_step": round(1000 * POLICY_S[0] / steps, 2),
-                    "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2)}
+            row = {"batch": batch, "episodes": len(out.read_text().splitlines()), "episode_steps": steps,
+                   "wall_s": round(wall, 2), "plan_s": round(PLAN_S[0], 2), "ms_per_episode_step": round(1000 * wall / steps, 2),
+                   "policy_ms_per_episode_step": round(1000 * POLICY_S[0] / steps, 2),
+                   "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2)}
+            print(name, json.dumps(row), flush=True)
+            return row
 
-        run(1, "warm1", 1)
-        run(args.batch, "warmB", 1)
+        run(args.batch, "warm", 1)  # builds the worker's envs, agent and memories (slot 0's are B = 1's)
         rows = [run(1, "b1", args.episodes), run(args.batch, "bB", args.episodes), run(1, "b1again", args.episodes)]
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     forward = forward_ms_per_row(args.checkpoint, args.batch)
-    for r in rows:
-        print(json.dumps(r))
     b1 = (rows[0]["ms_per_episode_step"] + rows[2]["ms_per_episode_step"]) / 2
     ratio = round(b1 / rows[1]["ms_per_episode_step"], 3)
     print(f"B=1 (mean of the two runs) / B={args.batch}: {ratio}x episode-steps per second")
