@@ -29,7 +29,7 @@ from pathlib import Path  # noqa: E402
 import torch  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import write_result  # noqa: E402
+from _common import CACHE, write_result  # noqa: E402
 
 from nue.evaluate import runner  # noqa: E402
 from nue.evaluate.runner import EvalConfig, run_eval  # noqa: E402
@@ -59,7 +59,7 @@ def main() -> None:
     ap.add_argument("--houses", type=int, default=3)
     ap.add_argument("--episodes", type=int, default=8, help="Episodes per house.")
     ap.add_argument("--max-steps", type=int, default=12)
-    ap.add_argument("--scenes-root", default=str(ROOT / "data/scenes"))
+    ap.add_argument("--scenes-root", default=str(CACHE), help="Where the val houses are (generated if missing).")
     args = ap.parse_args()
     torch.set_num_threads(1)
     PolicyAgent.act = _timed(PolicyAgent.act)  # type: ignore[method-assign]
