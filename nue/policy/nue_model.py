@@ -12,7 +12,8 @@ perception f_p, and attention-weighted fusion into action logits (eqs. 8-10, 13-
     [with ``panorama_dim``: f_pano = MLP(flatten(log1p(panorama / s))) joins f_cat1]
     [with ``gru_dim``: h_t = GRU(f_cat2, h_{t-1}); logits = MLP(h_t)]
     aux_angle = wrap(MLP_2layer(f_cog))
-    [with ``goal_head``: (goal-in-view logit, log goal distance) = MLP_2layer(f_cog)]
+    [with ``goal_match``: f_match = goal-view matching of rgb and goal (nue.policy.goal_match) joins f_cat1]
+    [with ``goal_head``: (goal-in-view logit, log goal distance) = MLP_2layer([f_cog, f_match])]
 
 Switches: ``use_uncertainty=False`` drops f_u (f_cat1 = [f_cog, f_p]), ``use_aux=False`` drops the
 angle head, ``use_cbam=False`` drops both CBAMs; a dropped part is ``None`` and has no parameters.
@@ -29,6 +30,7 @@ from torch import Tensor, nn
 from nue.policy.base import PolicyModel, PolicyOutput, State, wrap_angle_t
 from nue.policy.blocks import ConvBranch, mlp
 from nue.policy.config import ModelConfig
+from nue.policy.goal_match import GoalMatch
 from nue.policy.inputs import PolicyInput
 
 
@@ -77,10 +79,12 @@ class NUEPolicy(PolicyModel):
         self.f_cog = ConvBranch(c.cog_channels + 3, c.cognition_channels, c.map_grid, c.branch_dim, **cbam)
         self.f_p = ConvBranch(7 if c.goal_in_perception else 4, c.perception_channels, c.perception_grid, c.perception_dim, negative_slope=s)
         self.aux_head = mlp([c.branch_dim, c.aux_hidden, 1], s, final_activation=False) if c.use_aux else None
-        self.goal_head = mlp([c.branch_dim, c.aux_hidden, 2], s, final_activation=False) if c.goal_head else None
+        self.f_match = GoalMatch(c.goal_match, negative_slope=s) if c.goal_match else None
+        self.goal_head = (mlp([c.branch_dim + c.goal_match, c.aux_hidden, 2], s, final_activation=False)
+                          if c.goal_head else None)
         k, hp, wp = c.panorama_shape
         self.f_pano = mlp([k * hp * wp, 2 * c.panorama_dim, c.panorama_dim], s) if c.panorama_dim else None
-        fused = c.branch_dim * (2 if c.use_uncertainty else 1) + c.perception_dim + c.panorama_dim
+        fused = c.branch_dim * (2 if c.use_uncertainty else 1) + c.perception_dim + c.panorama_dim + c.goal_match
         self.fusion = FusionHead(fused, config)
         self.gru = nn.GRUCell(c.fusion_dim, c.gru_dim) if c.gru_dim else None
 
@@ -109,9 +113,14 @@ class NUEPolicy(PolicyModel):
                 raise ValueError(f"model {self.config.name!r} reads the uncertainty panorama, but inp.panorama is None")
             pano = torch.log1p(inp.panorama.clamp_min(0.0) / self.config.uncertainty_scale)
             parts.append(self.f_pano(pano.reshape(pano.shape[0], -1).to(f_p.dtype)))
+        head_in = f_cog
+        if self.f_match is not None:
+            f_match = self.f_match(inp.rgbd[:, :3], inp.goal).to(f_p.dtype)
+            parts.append(f_match)
+            head_in = torch.cat([f_cog, f_match.to(f_cog.dtype)], dim=1)
         f_cat1 = torch.cat(parts, dim=1)
         aux = None if self.aux_head is None else wrap_angle_t(self.aux_head(f_cog)[:, 0])
-        goal = None if self.goal_head is None else self.goal_head(f_cog)
+        goal = None if self.goal_head is None else self.goal_head(head_in)
         return self.fusion.fused(f_cat1), aux, goal
 
     def initial_state(self, batch_size: int, device: torch.device | str | None = None) -> State:

@@ -287,8 +287,11 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
     else:
         sampler = BufferSampler(data, per_rank, rng, cfg.buffer_episodes, rank=0, world=1)
     # Before a resume restores torch's generator: building the memory's field (policy_meta) draws from it.
+    stored_cfg = dataclasses.asdict(cfg)
+    if not model_cfg.goal_head:  # only models with the exploitation head record its weight (older checkpoints' dicts)
+        del stored_cfg["goal_weight"]
     meta = policy_meta(task, manifest.memory, model_cfg, manifest.scenes, manifest.hash(),
-                       {**dataclasses.asdict(cfg), "precision_resolved": resolve_precision(cfg.precision, device)},
+                       {**stored_cfg, "precision_resolved": resolve_precision(cfg.precision, device)},
                        {"episodes": data.n_episodes, "steps": len(data),
                                                  "skipped": [str(p) for p, _ in data.skipped]})
     if resume and (out_dir / "last.pt").is_file():
