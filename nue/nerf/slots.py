@@ -3,7 +3,8 @@ list of slots at once.
 
 :class:`MemoryList` holds B separate :class:`~nue.nerf.online.OnlineNeRF` memories and calls them one by one:
 each slot's maps and updates are exactly those of a memory used alone. A stacked memory (one field with a
-leading slot dimension, one update for all slots) has the same interface; :func:`slot_memory` chooses.
+leading slot dimension, one update for all slots: :class:`nue.nerf.stacked.StackedMemory`) has the same interface;
+:func:`slot_memory` chooses.
 """
 
 from __future__ import annotations
@@ -13,9 +14,11 @@ from typing import Any, Sequence
 import numpy as np
 
 from nue.nerf.online import MemoryMaps, OnlineNeRF
+from nue.nerf.stacked import StackedMemory
 
-SLOT_MEMORY_KINDS = ("list",)
-"""What :func:`slot_memory` can build: ``list`` = :class:`MemoryList` (the default)."""
+SLOT_MEMORY_KINDS = ("list", "stacked")
+"""What :func:`slot_memory` can build: ``list`` = :class:`MemoryList` (the default), ``stacked`` =
+:class:`nue.nerf.stacked.StackedMemory` (grid fields only; its maps equal the list's up to float rounding)."""
 
 
 class MemoryList:
@@ -44,16 +47,19 @@ class MemoryList:
             self.memories[i].step(rgb, d, p, floor_z=z)
 
 
-def slot_memory(first: OnlineNeRF, slots: int, kind: str = "list") -> MemoryList:
+def slot_memory(first: OnlineNeRF, slots: int, kind: str = "list") -> MemoryList | StackedMemory:
     """The memory of ``slots`` lock-step slots built like ``first`` (same config, camera, initial weights,
-    device); slot 0 is ``first`` itself.
+    device); for ``list`` slot 0 is ``first`` itself.
 
-    ``kind``: ``list`` (:class:`MemoryList`). The stacked memory (``nue.nerf.stacked.StackedMemory``) is to be
-    chosen here by another kind once it exists; records must then store the kind (it changes the arithmetic).
+    ``kind``: ``list`` (:class:`MemoryList`) or ``stacked`` (:class:`~nue.nerf.stacked.StackedMemory`). The kind
+    changes the arithmetic, so a caller that offers ``stacked`` must store it with its records (``nue eval`` does
+    not offer it yet: its runs use ``list``).
     """
     if kind not in SLOT_MEMORY_KINDS:
         raise ValueError(f"unknown slot memory kind {kind!r}; expected one of {SLOT_MEMORY_KINDS}")
-    # --- the place for the stacked memory: `if kind == "stacked": return StackedMemory(...)` ---
+    if kind == "stacked":
+        return StackedMemory(first.config, slots, camera=first.camera, device=first.device,
+                             init_state=first.initial_state())
     twins = [OnlineNeRF(first.config, first.camera, init_state=first.initial_state(), device=first.device)
              for _ in range(slots - 1)]
     return MemoryList([first, *twins])
