@@ -184,17 +184,17 @@ def _actions(rec: dict) -> str:
 
 
 def test_batched_and_single_runs_agree(tmp_path, checkpoint, episodes_dir):
-    """6 episodes of the expert and of a (random) checkpoint on 3 slots (so slots are refilled; the expert's episodes
+    """4 episodes of the expert and of a (random) checkpoint on 3 slots (so slots are refilled; the expert's episodes
     end at different steps) against the plain loop, same seeds. Agreement asked: the same actions for the first 10
     steps of every episode and the same success and step count for every episode (on this CPU the records are
     identical but for the batch setting and the slot: a 3-row forward rounds differently from a 1-row one only in
     the last bits of a logit, too little to change the paper preset's argmax here)."""
     single, batched = tmp_path / "b1.jsonl", tmp_path / "b3.jsonl"
-    assert _eval(checkpoint, episodes_dir, single, expert=True).returncode == 0
-    res = _eval(checkpoint, episodes_dir, batched, "--batch", 3, expert=True)
+    assert _eval(checkpoint, episodes_dir, single, "--max-episodes", 4, expert=True).returncode == 0
+    res = _eval(checkpoint, episodes_dir, batched, "--batch", 3, "--max-episodes", 4, expert=True)
     assert res.returncode == 0, res.stderr
     one, three = _records(single), _records(batched)
-    assert one.keys() == three.keys() and len(one) == 12
+    assert one.keys() == three.keys() and len(one) == 8
     assert len({r["steps"] for r in one.values() if r["method"] == "expert"}) > 2  # unequal lengths
     for key, r in three.items():
         assert r["extra"]["settings"]["batch"] == 3 and "batch" not in one[key]["extra"]["settings"]
@@ -204,18 +204,18 @@ def test_batched_and_single_runs_agree(tmp_path, checkpoint, episodes_dir):
 
 
 def test_killed_batched_run_resumes_without_losing_or_redoing(tmp_path, checkpoint, episodes_dir):
-    """Killed after 2 of 6 records (injected failure): the rerun writes exactly the other 4; the records equal an
+    """Killed after 2 of 4 records (injected failure): the rerun writes exactly the other 2; the records equal an
     uninterrupted run's (trajectories, outcome)."""
     out, whole = tmp_path / "r.jsonl", tmp_path / "whole.jsonl"
-    first = _eval(checkpoint, episodes_dir, out, "--batch", 3, fail_after=2)
+    first = _eval(checkpoint, episodes_dir, out, "--batch", 3, "--max-episodes", 4, fail_after=2)
     assert first.returncode == 3, first.stderr
     assert len(out.read_text().splitlines()) == 2
     kept = out.read_text()
-    second = _eval(checkpoint, episodes_dir, out, "--batch", 3)
+    second = _eval(checkpoint, episodes_dir, out, "--batch", 3, "--max-episodes", 4)
     assert second.returncode == 0, second.stderr
     lines = out.read_text().splitlines()
-    assert out.read_text().startswith(kept) and len(lines) == 6 and len({json.loads(x)["extra"]["key"] for x in lines}) == 6
-    assert _eval(checkpoint, episodes_dir, whole, "--batch", 3).returncode == 0
+    assert out.read_text().startswith(kept) and len(lines) == 4 and len({json.loads(x)["extra"]["key"] for x in lines}) == 4
+    assert _eval(checkpoint, episodes_dir, whole, "--batch", 3, "--max-episodes", 4).returncode == 0
     resumed, straight = _records(out), _records(whole)
     for key, r in straight.items():
         assert (_actions(resumed[key]), resumed[key]["success"]) == (_actions(r), r["success"]), key
