@@ -26,6 +26,7 @@ import threading
 import time
 import zlib
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from queue import Empty
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Sequence, TypeVar
 
@@ -136,19 +137,27 @@ def run_jobs(
     ray_address: str | None = None,
     desc: str = "episodes",
     progress: bool = True,
+    stream: bool = False,
+    total: int | None = None,
 ) -> int:
-    """Run ``fn`` over the jobs not yet done; returns the number of jobs run in this call.
+    """Run ``fn`` over the jobs not yet done; returns the number of results handed to ``on_result`` in this call.
 
     ``fn`` must be a module-level function (it is pickled to workers). ``on_result(job, result)`` runs
     in the driver, in completion order. ``workers <= 1`` without Ray runs in this process. Every job runs
     with one torch thread wherever it runs, so results do not depend on ``workers`` or Ray.
+
+    ``stream``: ``fn(job)`` yields several results (e.g. the episodes of a lock-step batch); each reaches
+    ``on_result`` as soon as the worker yields it (a local worker's queue, a Ray streaming generator), so a
+    killed run loses only the results not yet yielded. ``total``: the progress bar's count of results
+    (default one per job).
     """
     todo = [j for j in jobs if not is_done(j)]
     keys = [j.key for j in jobs]
     if len(set(keys)) != len(keys):
         raise ValueError("job keys must be unique")
-    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc=desc, unit="ep", disable=not progress,
-               dynamic_ncols=True, smoothing=0.1)
+    n_total = len(jobs) if total is None else total
+    bar = tqdm(total=n_total, initial=n_total - len(todo) if total is None else 0, desc=desc, unit="ep",
+               disable=not progress, dynamic_ncols=True, smoothing=0.1)
     written = 0
 
     def finish(job: Job, result: Any) -> None:
@@ -161,45 +170,105 @@ def run_jobs(
     by_key = {j.key: j for j in todo}
     try:
         if ray_address:
-            _run_ray(todo, fn, finish, ray_address)
+            _run_ray(todo, fn, finish, ray_address, stream)
         elif workers <= 1:
             for job in todo:
-                finish(job, _call_in_process(fn, job))
+                if stream:
+                    _stream_in_process(fn, job, finish)
+                else:
+                    finish(job, _call_in_process(fn, job))
         else:
-            _run_pool(todo, fn, finish, workers, by_key)
+            _run_pool(todo, fn, finish, workers, by_key, stream)
     finally:
         bar.close()
     return written
 
 
-def _run_pool(todo: Iterable[Job], fn, finish, workers: int, by_key: dict[str, Job]) -> None:
+def _stream_in_process(fn, job: Job, finish) -> None:
+    """A streaming job in this process with one torch thread (as :func:`_call_in_process`): each result is
+    finished as soon as ``fn`` yields it."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        for result in fn(job):
+            finish(job, result)
+    finally:
+        torch.set_num_threads(threads)
+
+
+_STREAM_QUEUE: Any = None
+
+
+def _stream_worker_init(threads: int, parent_pid: int, queue) -> None:
+    """A local worker of streaming jobs: :func:`worker_init` and the queue its results go back by."""
+    global _STREAM_QUEUE
+    _STREAM_QUEUE = queue
+    worker_init(threads, parent_pid)
+
+
+def _call_stream(fn, job):
+    """Worker: put each result of ``fn(job)`` on the queue at once; returns the key and how many were put."""
+    n = 0
+    for result in fn(job):
+        _STREAM_QUEUE.put((job.key, result))
+        n += 1
+    return job.key, n
+
+
+def _run_pool(todo: Iterable[Job], fn, finish, workers: int, by_key: dict[str, Job], stream: bool = False) -> None:
     ctx = mp.get_context("spawn")
     pending_jobs = list(todo)
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=worker_init,
-                             initargs=(1, os.getpid())) as pool:
+    queue: Any = ctx.Queue() if stream else None
+    init: Any = _stream_worker_init if stream else worker_init
+    initargs: Any = (1, os.getpid(), queue) if stream else (1, os.getpid())
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=init, initargs=initargs) as pool:
         running: set[Future] = set()
-        # Keep at most 2 jobs per worker queued, so a kill loses little and results stream in order.
-        while pending_jobs or running:
-            while pending_jobs and len(running) < 2 * workers:
-                running.add(pool.submit(_call, fn, pending_jobs.pop(0)))
-            done, running = wait(running, return_when=FIRST_COMPLETED)
-            for fut in done:
-                key, result = fut.result()
-                try:
-                    finish(by_key[key], result)
-                except BaseException:
-                    for f in running:
-                        f.cancel()
-                    raise
+        received: dict[str, int] = {}
+
+        def take(block: bool) -> None:  # one streamed result, if any
+            try:
+                key, result = queue.get(timeout=0.05) if block else queue.get_nowait()
+            except Empty:
+                return
+            received[key] = received.get(key, 0) + 1
+            finish(by_key[key], result)
+
+        try:
+            # Keep at most 2 jobs per worker queued, so a kill loses little and results stream in order.
+            while pending_jobs or running:
+                while pending_jobs and len(running) < 2 * workers:
+                    running.add(pool.submit(_call_stream if stream else _call, fn, pending_jobs.pop(0)))
+                if stream:
+                    take(block=True)
+                    done = {f for f in running if f.done()}
+                    running -= done
+                else:
+                    done, running = wait(running, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    key, result = fut.result()
+                    if not stream:
+                        finish(by_key[key], result)
+                        continue
+                    while received.get(key, 0) < result:  # the queue's feeder may trail the job's end
+                        take(block=True)
+        except BaseException:
+            for f in running:
+                f.cancel()
+            raise
 
 
-def _run_ray(todo: Sequence[Job], fn, finish, address: str) -> None:
+def _run_ray(todo: Sequence[Job], fn, finish, address: str, stream: bool = False) -> None:
     try:
         import ray
     except ImportError:
         raise RuntimeError("--ray-address needs Ray: pip install 'nue[ray]'") from None
     if not ray.is_initialized():
         ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+    if stream:
+        _run_ray_stream(ray, todo, fn, finish)
+        return
     remote = ray.remote(num_cpus=1)(_ray_call)
     refs = {remote.remote(fn, job): job for job in todo}  # tasks of this driver's job: they end with it
     try:
@@ -217,5 +286,30 @@ def _run_ray(todo: Sequence[Job], fn, finish, address: str) -> None:
 def _ray_call(fn, job):
     worker_init(1)
     return _call(fn, job)
+
+
+def _run_ray_stream(ray, todo: Sequence[Job], fn, finish) -> None:
+    """Streaming jobs as Ray generator tasks: each result is finished as soon as its task yields it."""
+    remote = ray.remote(num_cpus=1)(_ray_stream)
+    gens = {remote.remote(fn, job): job for job in todo}
+    try:
+        while gens:
+            ready, _ = ray.wait(list(gens), num_returns=1)
+            for gen in ready:
+                try:
+                    ref = next(gen)
+                except StopIteration:
+                    del gens[gen]
+                    continue
+                finish(gens[gen], ray.get(ref))
+    except BaseException:
+        for gen in gens:
+            ray.cancel(gen, force=True)
+        raise
+
+
+def _ray_stream(fn, job):
+    worker_init(1)
+    yield from fn(job)
 
 

@@ -45,6 +45,9 @@ class RunSettings:
     last_mile: dict | None = None
     """The last-mile wrapper's settings (:meth:`nue.policy.last_mile.LastMileConfig.to_dict`) of a ``sling+``
     method; None otherwise (then left out of the stored form, as in records made before it existed)."""
+    batch: int = 1
+    """Lock-step slots of the worker that ran the episode (``nue eval --batch``); the policy's forward runs on this
+    many rows, which changes its rounding. Left out of the stored form when 1 (as in records made before it existed)."""
 
     @staticmethod
     def episode_digest(episode: Episode) -> str:
@@ -52,10 +55,12 @@ class RunSettings:
         return hashlib.sha256(json.dumps(dataclasses.asdict(episode), sort_keys=True).encode()).hexdigest()[:16]
 
     def to_dict(self) -> dict:
-        """The record's ``extra['settings']`` (``last_mile`` only when set)."""
+        """The record's ``extra['settings']`` (``last_mile`` only when set, ``batch`` only when > 1)."""
         d = dataclasses.asdict(self)
         if d["last_mile"] is None:
             del d["last_mile"]
+        if d["batch"] == 1:
+            del d["batch"]
         return d
 
     def differences(self, stored: Mapping[str, Any] | None) -> list[str]:
@@ -65,7 +70,8 @@ class RunSettings:
             return ["settings (an older record)"]
         now = self.to_dict()
         default = {f.name: f.default for f in dataclasses.fields(self) if f.default is not dataclasses.MISSING}
-        return sorted(k for k in now if stored.get(k, default.get(k)) != now[k])
+        names = [f.name for f in dataclasses.fields(self)]  # also those left out of one stored form (default)
+        return sorted(k for k in names if (k in now or k in stored) and stored.get(k, default.get(k)) != now.get(k, default.get(k)))
 
 
 @dataclass(frozen=True)

@@ -8,11 +8,13 @@ recurrent state of Nav-A3C is carried across steps and reset per episode), :clas
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import torch
 
 from nue.policy.base import PolicyModel, choose_actions
-from nue.policy.inputs import prepare_goal, prepare_input
+from nue.policy.inputs import PolicyInput, prepare_goal, prepare_input
 from nue.policy.uncertainty_expert import UncertaintyExpert
 from nue.sim.env import ImageNavEnv
 from nue.sim.expert import ExpertConfig, GeodesicExpert
@@ -133,6 +135,58 @@ class PolicyAgent:
             self.last_goal_view = float(torch.sigmoid(out.goal_view[0].float()))
             self.last_goal_distance = float(torch.exp(out.goal_log_distance[0].float()))
         return int(choose_actions(out.logits, self.greedy, self.generator)[0])
+
+    def twin(self) -> "PolicyAgent":
+        """Another agent on the same model (weights shared, own recurrent state and action sampling): one per
+        slot of the lock-step loop, whose :meth:`act_batch` runs them in one forward."""
+        return PolicyAgent(self.model, greedy=self.greedy, device=self.device, git_commit=self.git_commit)
+
+    def batch_key(self) -> tuple:
+        """Agents with equal keys share one forward in :meth:`act_batch` (same model object, greedy rule, device)."""
+        return (id(self.model), self.greedy, str(self.device))
+
+    @staticmethod
+    def act_batch(agents: list["PolicyAgent"], obs_list: list, maps_list: list, rows: int = 0,
+                  positions: list[int] | None = None) -> list[int]:
+        """The actions of ``agents`` (equal :meth:`batch_key`) for their observations and maps, in one forward of
+        the shared model. Each agent prepares its own input, keeps its own recurrent state and samples with its own
+        generator, as in :meth:`act`.
+
+        The batch has ``max(rows, len(agents))`` rows: agent k sits in row ``positions[k]`` (default k), the other
+        rows repeat the first agent's input and are dropped. A CPU forward's rounding depends on the batch size
+        and may depend on the row's position, never on the other rows' contents (measured on the NUE checkpoint:
+        8 rows bit-identical at every position; 3 rows differ in the last bit at position 2), so with a fixed
+        ``rows`` and position an agent's numbers depend on its own inputs only."""
+        if not agents:
+            return []
+        positions = list(range(len(agents))) if positions is None else list(positions)
+        n = max(rows, len(agents), max(positions) + 1)
+        inputs = [a.policy_input(o, m) for a, o, m in zip(agents, obs_list, maps_list)]
+        order = [0] * n  # row -> agent
+        for k, p in enumerate(positions):
+            order[p] = k
+        batch = _stack_inputs([inputs[k] for k in order])
+        state = agents[0].state
+        if state is not None:
+            state = tuple(torch.cat([agents[k].state[j] for k in order]) for j in range(len(state)))  # type: ignore[index]
+        with torch.no_grad():
+            out = agents[0].model(batch, state)
+        actions = []
+        for k, (a, p) in enumerate(zip(agents, positions)):
+            a.last_input = inputs[k]
+            a.state = None if out.state is None else tuple(s[p:p + 1] for s in out.state)
+            a.last_aux = None if out.aux_angle is None else float(out.aux_angle[p])
+            if out.goal_view is not None and out.goal_log_distance is not None:
+                a.last_goal_view = float(torch.sigmoid(out.goal_view[p].float()))
+                a.last_goal_distance = float(torch.exp(out.goal_log_distance[p].float()))
+            actions.append(int(choose_actions(out.logits[p:p + 1], a.greedy, a.generator)[0]))
+        return actions
+
+
+def _stack_inputs(inputs: list[PolicyInput]) -> PolicyInput:
+    """One batch of single-row inputs (concatenated along the batch dimension)."""
+    return PolicyInput(**{f.name: None if getattr(inputs[0], f.name) is None else torch.cat([getattr(x, f.name) for x in inputs])
+                          for f in dataclasses.fields(PolicyInput)})  # type: ignore[arg-type]
 
 
 class MixedAgent:
