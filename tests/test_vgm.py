@@ -247,3 +247,28 @@ def test_vgm_imitation_loss_falls_on_the_tiny_collection(tiny_vgm_run, tmp_path)
     init.update({k: v for k, v in state.items() if k.startswith("embed.")})  # the same (pre-trained) embedding
     before, after = loss_of(init), loss_of(state)
     assert after < 0.8 * before, (before, after)  # measured: 1.10 -> 0.75
+
+
+def test_the_goal_is_encoded_once_per_episode_in_eval_mode_and_gives_the_same_actions():
+    cfg = get_model_config("vgm")
+    torch.manual_seed(0)
+    model = build_model(cfg).eval()
+    g = torch.Generator().manual_seed(0)
+    goal = torch.rand(1, 3, *cfg.goal_size, generator=g)
+    frames = [torch.rand(1, 4, *cfg.frame_size, generator=g) for _ in range(3)]
+    calls = []
+    model.goal_encoder.register_forward_hook(lambda *a: calls.append(1))
+    with torch.no_grad():
+        s = model.initial_state(1)
+        kept = []
+        for f in frames:
+            out = model(PolicyInput(rgbd=f, goal=goal), s)
+            s = out.state
+            kept.append(out.logits)
+        s = model.initial_state(1)
+        fresh = []
+        for f in frames:
+            out = model(PolicyInput(rgbd=f, goal=goal.clone()), s)  # a new tensor each step: encoded each step
+            s = out.state
+            fresh.append(out.logits)
+    assert len(calls) == 1 + 3 and torch.equal(torch.cat(kept), torch.cat(fresh))

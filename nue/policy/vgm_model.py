@@ -72,11 +72,15 @@ class VGMPolicy(PolicyModel):
         self.policy = mlp([c.lstm_dim, c.head_hidden, c.num_actions], s, final_activation=False)
         self.aux_head = mlp([c.lstm_dim, c.aux_hidden, 1], s, final_activation=False) if c.use_aux else None
         self.last_graph: ViewGraph | None = None
+        self._goal_cache: tuple[Tensor, tuple, Tensor, Tensor] | None = None
+        """(goal tensor, (its version, dtype), e_g, f_g) of the last eval-mode call; holding the tensor keeps its
+        identity unique. Cleared by ``train()`` / ``eval()``."""
 
     def train(self, mode: bool = True) -> "VGMPolicy":
         """As ``nn.Module.train``, but the frozen embedding network stays in eval mode (its BatchNorm statistics fixed)."""
         super().train(mode)
         self.embed.eval()
+        self._goal_cache = None
         return self
 
     def initial_state(self, batch_size: int, device: torch.device | str | None = None) -> State:
@@ -96,8 +100,20 @@ class VGMPolicy(PolicyModel):
             goal = F.interpolate(goal, size=tuple(inp.rgbd.shape[-2:]), mode="area")
         with torch.no_grad(), torch.autocast(inp.rgbd.device.type, enabled=False):
             e_t = self.embed(inp.rgbd[:, :3].float())
+        e_g, f_g = self._goal_parts(inp.goal, goal, inp.rgbd.dtype)
+        return e_t, e_g, self.obs_encoder(inp.rgbd), f_g
+
+    def _goal_parts(self, raw: Tensor, goal: Tensor, dtype: torch.dtype) -> tuple[Tensor, Tensor]:
+        """(e_g, f_g) of the goal photo; in eval mode kept while the same goal tensor comes back unchanged (the agent
+        passes one prepared goal for a whole episode), so an agent step encodes the goal once per episode."""
+        kept = self._goal_cache
+        if not self.training and kept is not None and kept[0] is raw and kept[1] == (raw._version, dtype):
+            return kept[2], kept[3]
+        with torch.no_grad(), torch.autocast(goal.device.type, enabled=False):
             e_g = self.embed(goal.float())
-        return e_t, e_g, self.obs_encoder(inp.rgbd), self.goal_encoder(goal.to(inp.rgbd.dtype))
+        f_g = self.goal_encoder(goal.to(dtype))
+        self._goal_cache = (raw, (raw._version, dtype), e_g, f_g) if not self.training else None
+        return e_g, f_g
 
     def _step(self, e_t: Tensor, e_g: Tensor, f_o: Tensor, f_g: Tensor, state: State,
               reset: Tensor | None) -> tuple[Tensor, State]:
