@@ -131,7 +131,8 @@ class ModelConfig:
     """VGM: node capacity of the graph (VGM's memory size); when full, a view below the threshold is localised to its
     most similar node instead of adding one."""
     graph_threshold: float = 0.75
-    """VGM: a view whose embedding has cosine similarity below this to every node becomes a new node (VGM: 0.75)."""
+    """VGM: a view whose embedding has cosine similarity below this to every node becomes a new node (VGM: 0.75);
+    above 1, every view becomes a node (until the graph is full)."""
     memory_dim: int = 128
     """VGM: width of the graph convolution and of the attention read-outs."""
     gcn_layers: int = 2
@@ -182,8 +183,8 @@ class ModelConfig:
                 raise ConfigError(where, f"embed_dim must be even (its time encoding), got {self.embed_dim}")
             if self.memory_dim % self.attention_heads:
                 raise ConfigError(where, f"attention_heads {self.attention_heads} must divide memory_dim {self.memory_dim}")
-            if not -1.0 <= self.graph_threshold <= 1.0 or self.embed_temperature <= 0 or self.embed_steps < 0:
-                raise ConfigError(where, "graph_threshold must lie in [-1, 1], embed_temperature be positive and "
+            if not -1.0 <= self.graph_threshold or self.embed_temperature <= 0 or self.embed_steps < 0:
+                raise ConfigError(where, "graph_threshold must be >= -1, embed_temperature positive and "
                                          "embed_steps >= 0")
 
     # --- what the model reads -------------------------------------------------------------------

@@ -6,7 +6,7 @@ Per step, with the graph memory of :mod:`nue.policy.graph_memory` carried in the
     e_g   = normalize(embed(goal))              (nue.train.contrastive) before imitation; the graph's node features
     G_t   = localise(G_{t-1}, e_t)              a new node where e_t is below the threshold to every node
     x_i   = MLP([node_i + time_enc(t - visit_i), e_g])        node features fused with the goal's embedding
-    X     = GCN(x, D^-1/2 (A + I) D^-1/2)
+    X     = GCN(x, D^-1/2 (A + I) D^-1/2) + time_enc(t - visit)
     f_o   = enc_o(rgbd_t);  f_g = enc_g(goal)   trainable encoders (RGB-D frame; goal RGB)
     r_o   = ReadOut_o(W f_o, X);  r_g = ReadOut_g(W' f_g, X)  attention read-outs, observation / goal as query
     h_t   = LSTMCell(MLP([f_o, r_o, r_g]), h_{t-1});   logits = MLP(h_t)
@@ -134,6 +134,8 @@ class VGMPolicy(PolicyModel):
                        e_g[:, None].expand(-1, n, -1).to(nodes.dtype)], dim=-1)
         x = self.node_fusion(x) * mask[..., None]
         x = self.gcn(x, normalized_adjacency(graph.adj[:, :n, :n], mask).to(x.dtype))
+        # the time again after the convolution (as VGM): it smooths neighbours alike (two linked nodes come out equal)
+        x = x + time_encoding(age, x.shape[-1]).to(x.dtype) * mask[..., None]
         r_o = self.read_obs(self.obs_query(f_o), x, mask)
         r_g = self.read_goal(self.goal_query(f_g), x, mask)
         h, c = self.lstm(self.fusion(torch.cat([f_o, r_o, r_g], dim=-1)), (h, c))
