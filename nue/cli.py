@@ -34,8 +34,9 @@ app.add_typer(episodes_app, name="episodes")
 
 @scenes_app.command("generate")
 def scenes_generate(
-    split: str = typer.Option(..., help="train (21 houses), val (14 houses) or val_plain (14 houses of the held-out "
-                              "plain scene style)."),
+    split: str = typer.Option(..., help="train (21 houses), val (14 houses), val_plain (14 houses of the held-out "
+                              "plain scene style), train_diverse (42 houses, a style drawn per house from the "
+                              "diverse distribution) or val_pale (14 houses of the held-out pale family)."),
     out: Path = typer.Option(..., help="Folder to write <split>_<NN>/ scene folders into."),
     force: bool = typer.Option(False, help="Regenerate generated houses that are corrupt, incomplete or another house."),
 ):
@@ -58,6 +59,44 @@ def scenes_info(folders: list[Path] = typer.Argument(..., help="Scene folders.")
         s.load_mesh()
         typer.echo(f"{s.name}: hash {s.content_hash}, floors {list(s.floor_heights)}, "
                    f"free area {', '.join(f'{a:.1f}' for a in area)} m^2")
+
+
+@scenes_app.command("stats")
+def scenes_stats(
+    splits: str = typer.Option("train,val,val_plain,train_diverse,val_pale", help="Comma-separated splits to measure."),
+    scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the houses are (generated if missing)."),
+    out: Optional[Path] = typer.Option(None, help="Markdown file to write the table to (and the same stem .json with "
+                                       "every house's numbers); default: print the table."),
+    reference_split: str = typer.Option("train_diverse", "--reference", help="Training split the look distances are "
+                                        "measured to."),
+):
+    """Appearance and layout statistics of generated splits: wall lightness, chroma and pattern contrast,
+    wall-floor contrast, shared wall colours, layouts, and parameters outside the training style distribution."""
+    import json
+
+    from nue.scene.generator import SPLITS, ensure_house
+    from nue.scene.style_stats import house_stats, split_stats, stats_markdown
+
+    names = [s for s in splits.split(",") if s]
+    for name in names:
+        A.choice("--splits", name, SPLITS)
+    A.choice("--reference", reference_split, SPLITS)
+    if out is not None:
+        check_output_file(out, "the statistics file")
+    houses = {n: [house_stats(ensure_house(n, i, scenes_root)) for i in range(len(SPLITS[n]))] for n in names}
+    reference = houses.get(reference_split) or [house_stats(ensure_house(reference_split, i, scenes_root))
+                                                for i in range(len(SPLITS[reference_split]))]
+    stats = {n: split_stats(h, reference) for n, h in houses.items()}
+    table = stats_markdown(stats)
+    if out is None:
+        typer.echo(table, nl=False)
+        return
+    out.write_text(f"# Scene style statistics\n\nMade by `nue scenes stats --splits {','.join(names)} --reference "
+                   f"{reference_split} --out {out}` (nue.scene.style_stats; median [min, max] over each split's "
+                   "houses; look distance: wall L*, C* and pattern contrast in units of their spread over the "
+                   "reference split, to its nearest other house).\n\n" + table)
+    out.with_suffix(".json").write_text(json.dumps({"splits": stats, "houses": houses}, indent=1) + "\n")
+    typer.echo(f"{sum(len(h) for h in houses.values())} houses -> {out}, {out.with_suffix('.json')}")
 
 
 @episodes_app.command("generate")

@@ -151,6 +151,10 @@ def report_cmd(
     explore: list[str] = typer.Option([], help="NAME=FILE: `nue explore` records from set NAME's starts, a section of "
                                       "RESULTS.md; repeatable."),
     drop_duplicates: bool = typer.Option(False, help=DROP_HELP),
+    generalisation: str = typer.Option("", help="Reference set (e.g. val252: the name of RECORDS or of a --set): write "
+                                       "OUT/generalisation.md, and a RESULTS.md section, with each model's SR / SPL "
+                                       "on it and on every held-out style set given (val_plain, val_pale), the drop, "
+                                       "and paired differences on each."),
 ):
     """Table I (SR / SPL / DTS per difficulty, CIs, paired differences to NUE) and coverage."""
     import json
@@ -185,11 +189,25 @@ def report_cmd(
         write_report(set_recs, out / set_name, task=task)
         write_coverage_figure(set_recs, out / set_name)
     typer.echo((out / "table.md").read_text() if (out / "table.md").is_file() else "")
+    if generalisation:
+        from nue.evaluate.results_md import generalisation_section
+
+        all_sets = {name or "val": recs, **sets}
+        if generalisation not in all_sets:
+            raise ConfigError("--generalisation", f"{generalisation!r} is not the name of RECORDS (--name) or of a --set")
+        section = generalisation_section(generalisation, all_sets)
+        if not section:
+            typer.echo("no generalisation table: no model ran the reference set and a held-out set (--set val_plain=...)")
+        else:
+            (out / "generalisation.md").write_text(section)
+            paths["generalisation"] = out / "generalisation.md"
+            typer.echo(section)
     if results_md:
         meta_path = results_md.parent / f"{results_md.stem}.meta.json"
         meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {
             "command": command, "date": "", "commit": "", "machine": f"{platform.machine()}, {os.cpu_count()} CPUs"}
-        results_md.write_text(render_results_md(recs, meta, task, sets=sets, main_name=name, explore=explored))
+        results_md.write_text(render_results_md(recs, meta, task, sets=sets, main_name=name, explore=explored,
+                                                generalisation=generalisation))
         typer.echo(f"wrote {results_md}")
     typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
 

@@ -42,7 +42,7 @@ STORAGE = ConfigOptions("nue.train.compact:StepStorage", *(Opt(f, check=_bits) f
                                                                                           "i_u_bits")))
 TRAIN = ConfigOptions(
     "nue.train.bc:TrainConfig", Opt("data", path=True), Opt("out", path=True), "model",
-    Opt("steps", check=A.positive), Opt("batch_size", check=A.positive), "lr", "aux_weight",
+    Opt("steps", check=A.positive), Opt("batch_size", check=A.positive), "lr", "aux_weight", "goal_weight",
     Opt("time_budget_s", flag="--time-budget", minutes=True, check=A.non_negative,
         help="Stop (and checkpoint) after this many minutes of training (0 = no limit); with the deprecated "
              "--dagger-rounds, per round with its rollouts included."),

@@ -90,8 +90,11 @@ class Recipe:
     """Training episodes per difficulty bin per training house."""
     heldout_per_bin: int = 1
     """Held-out episodes per bin per training house (held-out action accuracy)."""
+    train_split: str = "train"
+    """House split the demonstrations are collected in: ``train`` (the 21 houses every shipped model learned from) or
+    ``train_diverse`` (42 houses drawn from the ``diverse`` style distribution, docs/styles.md)."""
     train_houses: tuple[int, ...] = ()
-    """Indices of the training houses to collect in (empty = all 21)."""
+    """Indices of the training houses to collect in (empty = all of ``train_split``)."""
     memory: str = "fast"
     """Memory (NeRF) preset run online during collection (and stored in every checkpoint)."""
     # -- training --------------------------------------------------------------------------------
@@ -158,6 +161,8 @@ class Recipe:
     def __post_init__(self) -> None:
         for m in self.models:
             get_model_config(m)
+        if self.train_split not in SPLITS:
+            raise ConfigError("recipe", f"unknown train_split {self.train_split!r}; known: {', '.join(SPLITS)}")
         for s in self.eval_sets:
             get_episode_set(s)
         if self.train_minutes <= 0 and self.train_samples <= 0 and not self.steps:
@@ -216,7 +221,7 @@ class Recipe:
 
     def summary(self) -> str:
         """One paragraph for RESULTS.md (the full recipe is the run's ``recipe.json``)."""
-        houses = len(self.train_houses) or len(SPLITS["train"])
+        houses = len(self.train_houses) or len(SPLITS[self.train_split])
         if self.train_samples > 0:
             budget = f"{self.train_samples:,} samples each"
         elif self.train_minutes > 0:
@@ -236,8 +241,12 @@ class Recipe:
                 f"(+ {', '.join(self.experts) or 'no experts'}; swapped maps: {', '.join(self.swap_maps) or 'none'})")
 
     def to_dict(self) -> dict:
-        """Plain JSON data (stored in the run folder; a resumed run must match it exactly)."""
-        return _jsonable(dataclasses.asdict(self))
+        """Plain JSON data (stored in the run folder; a resumed run must match it exactly). ``train_split`` only when it
+        is not ``train``, so runs started before it existed resume."""
+        d = _jsonable(dataclasses.asdict(self))
+        if d["train_split"] == "train":
+            del d["train_split"]
+        return d
 
     def replace(self, **changes) -> "Recipe":
         return dataclasses.replace(self, **changes)

@@ -94,7 +94,7 @@ def episode_counts(recipe: Recipe) -> dict[str, int]:
 
 def collection_episodes(recipe: Recipe) -> int:
     """Demonstration episodes of a recipe: houses x 3 bins x (train + held-out per bin)."""
-    houses = len(recipe.train_houses) or len(SPLITS["train"])
+    houses = len(recipe.train_houses) or len(SPLITS[recipe.train_split])
     return houses * 3 * (recipe.episodes_per_bin + recipe.heldout_per_bin)
 
 
@@ -106,7 +106,7 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
     evaluated (the swapped-maps control too) as a model of its own."""
     w = max(1, workers)
     out = []
-    houses = (len(recipe.train_houses) or len(SPLITS["train"])) + sum(
+    houses = (len(recipe.train_houses) or len(SPLITS[recipe.train_split])) + sum(
         len(recipe.eval_houses) or len(SPLITS[EPISODE_SETS[s].split]) for s in recipe.eval_sets)
     out.append(StageEstimate("scenes", houses * cost.house_s, f"{houses} houses x {cost.house_s:.0f} s (kept if present)"))
     n_eps = collection_episodes(recipe)

@@ -151,8 +151,8 @@ def eval_episodes_dir(recipe: Recipe, folders: RunFolders, set_name: str) -> Pat
 
 
 def _houses(recipe: Recipe) -> list[tuple[str, int]]:
-    train_houses = recipe.train_houses or tuple(range(len(SPLITS["train"])))
-    out = [("train", i) for i in train_houses]
+    train_houses = recipe.train_houses or tuple(range(len(SPLITS[recipe.train_split])))
+    out = [(recipe.train_split, i) for i in train_houses]
     for name in recipe.eval_sets:
         split = get_episode_set(name).split
         out += [(split, i) for i in (recipe.eval_houses or range(len(SPLITS[split]))) if (split, i) not in out]

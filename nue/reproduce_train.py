@@ -42,7 +42,7 @@ class TrainJob:
 
 def collect_config(recipe: Recipe, device: str = "cpu") -> CollectConfig:
     """The demonstrations of a recipe (shared by all its training runs)."""
-    return CollectConfig(task=recipe.task, memory=recipe.memory, houses=recipe.train_houses,
+    return CollectConfig(task=recipe.task, memory=recipe.memory, split=recipe.train_split, houses=recipe.train_houses,
                          episodes_per_bin=recipe.episodes_per_bin, heldout_per_bin=recipe.heldout_per_bin,
                          seed=recipe.seed, device=device, expert=recipe.expert, noise=recipe.noise)
 

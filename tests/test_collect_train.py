@@ -112,6 +112,11 @@ def test_collection_round_trip(reference):
     assert arrays["action"].dtype == np.int8 and set(np.unique(arrays["action"])) <= {0, 1, 2}
     assert np.array_equal(arrays["action"], arrays["executed"])  # expert collection: label = executed
     assert np.all(np.abs(arrays["goal_angle"]) <= np.pi)
+    # the exploitation head's labels: in view only within the expert's 3 m view range; the distance is the pose's
+    assert arrays["goal_in_view"].dtype == np.int8 and arrays["goal_in_view"].shape == (t,)
+    assert np.all(arrays["goal_distance"][arrays["goal_in_view"] == 1] <= 3.0)
+    assert arrays["goal_distance"][-1] < arrays["goal_distance"][0] and arrays["goal_distance"][-1] <= 0.8 + 0.25
+    assert arrays["goal_in_view"][-1] == 1  # a successful expert ends looking at the goal's floor
     rgbd = np.asarray(arrays["rgbd"])
     assert rgbd.dtype == np.float32 and 0.0 <= float(rgbd[:, :3].min()) and float(rgbd.max()) <= 1.0
     summary = json.loads((reference / "summary.json").read_text())
@@ -564,3 +569,42 @@ def test_panorama_model_collects_trains_and_acts(houses, tmp_path):
             tmp_path / "scenes", workers=1, progress=False)
     with pytest.raises(DataError, match="panorama"):
         DemoSet(plain, "train").check_layout(get_model_config("nue_pano"))
+
+
+def test_goal_head_model_learns_its_labels_and_reports_them_at_decision_time(reference, houses, tmp_path):
+    """``nue_goal`` trains its exploitation head on the collection's labels (its loss on the training steps falls)
+    and the agent exposes the head's probability and distance after each act."""
+    from nue.policy import build_model
+    from nue.policy.checkpoint import load_agent, load_checkpoint
+    from nue.policy.config import get_model_config
+    from nue.rollout import run_episode
+    from nue.sim.env import make_env
+    from nue.sim.task import get_task
+    from nue.train.bc import TrainConfig, goal_head_loss, train
+
+    cfg = get_model_config("nue_goal").for_task(get_task("paper"))
+    torch.manual_seed(0)
+    init = build_model(cfg).state_dict()
+    res = train(TrainConfig(data=str(reference), out=str(tmp_path / "run"), model="nue_goal", steps=40, batch_size=16,
+                            warmup=5, eval_every=40, lr=2e-3), progress=False)
+
+    def head_loss(state):
+        ds = DemoSet(reference, "train")
+        model = build_model(cfg)
+        model.load_state_dict(state)
+        model.eval()
+        eps = np.concatenate([np.full(n, e) for e, n in enumerate(ds.lengths)])
+        steps = np.concatenate([np.arange(n) for n in ds.lengths])
+        batch = ds.batch(eps, steps, cfg)
+        assert batch.goal_in_view is not None and 0 < float(batch.goal_in_view.mean()) < 1
+        with torch.no_grad():
+            return float(goal_head_loss(model(batch.inp), batch))
+
+    last = load_checkpoint(res.last)
+    before, after = head_loss(init), head_loss(last["model_state"])
+    assert after < 0.7 * before, (before, after)
+    assert {"goal_view_auroc", "goal_view_recall", "goal_log_distance_error"} <= set(last["metrics"])
+    env = make_env(houses[0], "paper", max_steps=3)
+    agent, memory = load_agent(res.last, env.task)
+    run_episode(env, agent, memory=memory, seed=0)
+    assert 0.0 <= agent.last_goal_view <= 1.0 and agent.last_goal_distance > 0.0

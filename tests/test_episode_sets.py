@@ -55,7 +55,7 @@ def scenes(tmp_path_factory):
 
 def test_committed_files_are_rebuilt_from_their_specs(scenes, tmp_path):
     shutil.copytree(EPISODES / "val", tmp_path / "val")  # the set val252 extends
-    for name, house in (("val252", "val_00"), ("val_plain", "val_plain_00")):
+    for name, house in (("val252", "val_00"), ("val_plain", "val_plain_00"), ("val_pale", "val_pale_00")):
         (path,) = build_episode_set(name, scenes, tmp_path, houses=(0,), progress=False)
         assert path == tmp_path / name / f"{house}.json"
         _same_episodes(_entries(path), _entries(EPISODES / name / f"{house}.json"))

@@ -311,6 +311,8 @@ def test_gradients_reach_every_enabled_parameter(name):
     loss = F.cross_entropy(out.logits.reshape(4, -1), target.reshape(4))
     if out.aux_angle is not None:
         loss = loss + angle_l1_loss(out.aux_angle, torch.rand(2, 2, generator=gen) * 6 - 3)
+    if out.goal_view is not None:
+        loss = loss + out.goal_view.sum() + out.goal_log_distance.square().sum()
     loss.backward()
     for n, p in model.named_parameters():
         if not p.requires_grad:  # VGM's embedding network: frozen after its contrastive pre-training

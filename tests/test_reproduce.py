@@ -193,6 +193,7 @@ def test_the_v6_run_trained_every_model_as_the_recipe_says(model):
     _, header = load_policy(EPISODES.parent / "results" / "reproduce" / "run" / "runs" / model / "best.pt")
     folders = RunFolders(Path("/nowhere"), Path("data/scenes"), Path("episodes"))
     ours = dataclasses.asdict(train_config(get_recipe("v6"), model, folders, compile=True))
+    ours.pop("goal_weight")  # recorded only by models with the exploitation head (none of v6's)
     paths = {"data", "out", "select_episodes", "select_scenes_root"}
     stored = {k: v for k, v in header.train_config.items() if k not in paths}
     assert stored.pop("precision_resolved") == "fp32"  # precision auto on a CPU without native bf16
@@ -395,3 +396,21 @@ def test_a_resumed_seeded_run_estimates_the_seeds_left(tmp_path):
     assert left["train"].seconds == {s.stage: s for s in estimate(v7, 2, runs=seeds)}["train"].seconds > 0
     assert "8 runs (models x seeds)" in left["train"].detail and "8 trained earlier" in left["train"].detail
     assert "2,268 of 4,536 runs recorded" in left["eval/val252"].detail
+
+
+def test_train_split_selects_the_collection_houses_and_keeps_old_recipe_dicts():
+    from nue.errors import ConfigError
+    from nue.recipe import get_recipe
+    from nue.reproduce import _houses as houses_needed
+    from nue.reproduce_train import collect_config
+    from nue.scene.generator import SPLITS
+
+    v6 = get_recipe("v6")
+    assert "train_split" not in v6.to_dict() and collect_config(v6).split == "train"
+    diverse = v6.replace(train_split="train_diverse")
+    assert diverse.to_dict()["train_split"] == "train_diverse" and collect_config(diverse).split == "train_diverse"
+    needed = houses_needed(diverse)
+    assert sum(s == "train_diverse" for s, _ in needed) == len(SPLITS["train_diverse"])
+    assert not any(s == "train" for s, _ in needed)
+    with pytest.raises(ConfigError, match="train_split"):
+        v6.replace(train_split="nowhere")

@@ -137,7 +137,8 @@ def committed_explore(root) -> dict[str, list[EpisodeRecord]]:
 
 def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, object], task: str = "paper",
                       sets: Mapping[str, Sequence[EpisodeRecord]] | None = None, main_name: str = "",
-                      explore: Mapping[str, Sequence[EpisodeRecord]] | None = None) -> str:
+                      explore: Mapping[str, Sequence[EpisodeRecord]] | None = None,
+                      generalisation: str = "") -> str:
     """The text of RESULTS.md, a pure function of the records and ``meta``.
 
     ``meta``: ``command``, ``date``, ``commit``, ``machine`` (shown first), any other keys
@@ -146,7 +147,9 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     further episode sets (name -> records), each given its own section (:func:`set_section_markdown`)
     before the discussion; ``main_name``: the main records' episode set (``val252``), as the pooled section names
     it (default "Table I's episodes"); ``explore``: the exploration benchmark's records per set of starts (a section
-    each, :func:`exploration_section_markdown`). Same inputs give the same bytes (the bootstrap is seeded).
+    each, :func:`exploration_section_markdown`); ``generalisation``: a reference set's name (``val252``, the main
+    records or one of ``sets``): a section comparing it with every held-out set of ``sets``
+    (:mod:`nue.evaluate.generalisation`; '' = none). Same inputs give the same bytes (the bootstrap is seeded).
     """
     current = [r for r in records if not is_earlier_recipe(r.method)]
     earlier = [r for r in records if is_earlier_recipe(r.method)]
@@ -197,9 +200,31 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
         pooled = pooled_section_markdown({main_name or MAIN_SET: records, **sets})
         if pooled:
             parts.append(pooled)
+    if generalisation:
+        section = generalisation_section(generalisation, {main_name or MAIN_SET: records, **(sets or {})})
+        if section:
+            parts.append(section)
     if meta.get("discussion"):
         parts.append(f"## Discussion\n\n{meta['discussion']}\n")
     return "\n".join(parts)
+
+
+def generalisation_section(reference: str, sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
+    """RESULTS.md's (and ``nue report``'s) generalisation section: ``reference`` against every held-out set
+    (:func:`nue.sim.episode_sets.held_out_sets`) among ``sets``; '' when none of them ran both."""
+    from nue.evaluate.generalisation import generalisation_markdown
+    from nue.sim.episode_sets import held_out_sets
+
+    families = [name for name in held_out_sets() if name in sets]
+    if reference not in sets or not families:
+        return ""
+    table = generalisation_markdown(sets, reference, families)
+    if not table:
+        return ""
+    names = ", ".join(f"`{f}`" for f in families)
+    return (f"## Generalisation to held-out styles\n\nEach model on `{reference}` (houses of its training style) and on "
+            f"the held-out style families {names}, whose houses lie outside every training style (docs/styles.md).\n\n"
+            f"{table}")
 
 
 def results_set_files(root) -> dict[str, Path]:

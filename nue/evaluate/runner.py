@@ -31,7 +31,8 @@ from nue.nerf.online import OnlineNeRF
 from nue.output_lock import hold_output
 from nue.policy.agent import ExpertAgent, RandomAgent
 from nue.policy.checkpoint import PolicyHeader, check_compatible, load_agent, load_header
-from nue.policy.last_mile import SLING_PREFIX, LastMileAgent, LastMileConfig
+from nue.policy.commit import COMMIT_PREFIX
+from nue.policy.last_mile import COMMIT_LAST_MILE, SLING_PREFIX, LastMileAgent, LastMileConfig
 from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
 from nue.scene.navgrid import NavGrid
@@ -77,20 +78,25 @@ class EvalConfig:
     """Leave out episodes that cannot run (listed by :func:`plan_eval`) instead of refusing their file."""
     last_mile: LastMileConfig = LastMileConfig()
     """Settings of the last-mile wrapper of ``sling+<name>`` methods (stored in their records' settings)."""
+    commit: LastMileConfig = COMMIT_LAST_MILE
+    """Settings of the wrapper of ``commit+<name>`` methods: the last mile driven on the policy's own goal head
+    (:mod:`nue.policy.commit`; stored in their records' settings)."""
 
 
 def parse_method(spec: str) -> tuple[str, str | None]:
     """``name=path``, ``path`` (name from the checkpoint's model config), ``expert`` (the geodesic expert)
     or ``expert-explore`` (the exploring expert, ``nue.sim.explorer``). ``sling+name=path`` or ``sling+path``:
     the checkpoint wrapped in the last-mile agent (:class:`~nue.policy.last_mile.LastMileAgent`), named
-    ``sling+<name>``."""
+    ``sling+<name>``; ``commit+name=path`` / ``commit+path`` likewise with the learned locator
+    (:mod:`nue.policy.commit`, a model with ``goal_head``)."""
     if spec in EXPERT_METHODS:
         return spec, None
-    if spec.startswith(SLING_PREFIX) and "=" not in spec:
-        path = spec[len(SLING_PREFIX):]
-        if not path.strip():
-            raise ConfigError("--checkpoint", f"{spec!r}: expected {SLING_PREFIX}name=path or {SLING_PREFIX}path")
-        return SLING_PREFIX + load_header(path).name, path
+    for prefix in (SLING_PREFIX, COMMIT_PREFIX):
+        if spec.startswith(prefix) and "=" not in spec:
+            path = spec[len(prefix):]
+            if not path.strip():
+                raise ConfigError("--checkpoint", f"{spec!r}: expected {prefix}name=path or {prefix}path")
+            return prefix + load_header(path).name, path
     if "=" in spec:
         name, path = spec.split("=", 1)
         if not name.strip() or not path.strip():
@@ -132,7 +138,11 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
         for i, ep in enumerate(eps):
             other = eps[(i + 1) % len(eps)] if cfg.swap_maps else None
             for method, ckpt in parsed:
-                last_mile = cfg.last_mile if method.startswith(SLING_PREFIX) and ckpt is not None else None
+                last_mile = None
+                if ckpt is not None and method.startswith(SLING_PREFIX):
+                    last_mile = cfg.last_mile
+                elif ckpt is not None and method.startswith(COMMIT_PREFIX):
+                    last_mile = cfg.commit
                 settings = run_settings(cfg, digests.get(ckpt, method), ep, scene.content_hash, last_mile)
                 jobs.append(Job(f"{method}{swap}/{scene.name}/{ep.episode_id}", EvalJob(
                     method=method + swap, checkpoint=ckpt, expert=EXPERT_METHODS.get(method, "") if ckpt is None else "",
@@ -172,7 +182,12 @@ def parse_methods(methods: list[str], task: str) -> tuple[list[tuple[str, str | 
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise ConfigError("--checkpoint", f"method name {twice[0]!r} given twice; name them apart with name=path")
-    return parsed, {ckpt: checked_checkpoint(ckpt, task) for _, ckpt in parsed if ckpt is not None}
+    checked = {ckpt: checked_checkpoint(ckpt, task) for _, ckpt in parsed if ckpt is not None}
+    for name, ckpt in parsed:
+        if ckpt is not None and name.startswith(COMMIT_PREFIX) and not checked[ckpt][0].model.goal_head:
+            raise ConfigError(ckpt, f"{name!r} needs a model with a goal head (e.g. preset nue_goal); "
+                                    f"{checked[ckpt][0].model.name!r} has none")
+    return parsed, checked
 
 
 def checked_checkpoint(path: str, task: str) -> tuple[PolicyHeader, str]:

@@ -92,6 +92,11 @@ class PolicyAgent:
         self.device = torch.device(device)
         self.generator = torch.Generator(device="cpu")
         self.last_aux: float | None = None
+        """The last step's auxiliary goal angle, radians (None without the head)."""
+        self.last_goal_view: float | None = None
+        """The last step's goal-in-view probability from the exploitation head (None without it)."""
+        self.last_goal_distance: float | None = None
+        """... and its goal distance, metres."""
         self.last_input = None
         self._goal: tuple[np.ndarray, torch.Tensor] | None = None  # the last goal photo and its prepared tensor
 
@@ -124,6 +129,9 @@ class PolicyAgent:
             out = self.model(inp, self.state)
         self.state = out.state
         self.last_aux = None if out.aux_angle is None else float(out.aux_angle[0])
+        if out.goal_view is not None and out.goal_log_distance is not None:
+            self.last_goal_view = float(torch.sigmoid(out.goal_view[0].float()))
+            self.last_goal_distance = float(torch.exp(out.goal_log_distance[0].float()))
         return int(choose_actions(out.logits, self.greedy, self.generator)[0])
 
 

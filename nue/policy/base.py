@@ -27,11 +27,14 @@ State = tuple[Tensor, ...] | None
 class PolicyOutput:
     """``logits``: (B, A) (or (T, B, A)) unnormalised action scores; ``aux_angle``: predicted goal
     angle in radians wrapped to (-pi, pi], (B,) (or (T, B)), None without the auxiliary head;
-    ``state``: the state after the step(s)."""
+    ``state``: the state after the step(s); ``goal_view`` / ``goal_log_distance``: the exploitation head's
+    goal-in-view logit and log distance to the goal in metres, (B,) (or (T, B)), None without it."""
 
     logits: Tensor
     aux_angle: Tensor | None
     state: State
+    goal_view: Tensor | None = None
+    goal_log_distance: Tensor | None = None
 
 
 def wrap_angle_t(a: Tensor) -> Tensor:
@@ -82,8 +85,12 @@ class PolicyModel(nn.Module):
         """Run T steps of a (T, B, ...) batch; reactive models fold T into B (one big batch)."""
         t, b = inp.rgbd.shape[:2]
         out = self.forward(inp.flatten_time(), None)
-        aux = None if out.aux_angle is None else out.aux_angle.reshape(t, b)
-        return PolicyOutput(out.logits.reshape(t, b, -1), aux, state)
+
+        def tb(x):
+            return None if x is None else x.reshape(t, b)
+
+        return PolicyOutput(out.logits.reshape(t, b, -1), tb(out.aux_angle), state, tb(out.goal_view),
+                            tb(out.goal_log_distance))
 
     def _check_input(self, inp: PolicyInput) -> None:
         c = self.config

@@ -117,6 +117,14 @@ class ModelConfig:
     gru_dim: int = 0
     """NUE only: hidden size of a GRU between the fusion (f_cat2) and the action head, carrying a state across
     steps (0 = none, the paper's reactive fusion)."""
+    goal_head: bool = False
+    """NUE only: an exploitation head on f_cog, ``MLP(f_cog) -> (goal-in-view logit, log goal distance)``, trained on
+    the exploring expert's own switch test (the goal's floor seen within 3 m) and the robot's distance to the goal;
+    the ``commit+`` wrapper (:mod:`nue.policy.commit`) reads it at decision time."""
+    goal_match: int = 0
+    """NUE only: length of the goal-view matching vector f_match (:mod:`nue.policy.goal_match`: a shared CNN on the RGB
+    frame and the goal photo, cosine correlation of the goal's embedding with the frame's cells), joined to f_cat1 and
+    to the exploitation head's input (0 = none). Needs the goal at frame size (``goal_in_perception``)."""
     negative_slope: float = 0.01
     """Slope of every LeakyReLU."""
 
@@ -172,6 +180,11 @@ class ModelConfig:
             raise ConfigError(where, f"panorama_dim must be >= 0 and applies to kind 'nue' only, got {self.panorama_dim}")
         if self.gru_dim < 0 or (self.gru_dim and self.kind != "nue"):
             raise ConfigError(where, f"gru_dim must be >= 0 and applies to kind 'nue' only, got {self.gru_dim}")
+        if self.goal_match < 0 or (self.goal_match and (self.kind != "nue" or not self.goal_in_perception)):
+            raise ConfigError(where, f"goal_match must be >= 0 and applies to kind 'nue' with goal_in_perception only, "
+                                     f"got {self.goal_match}")
+        if self.goal_head and self.kind != "nue":
+            raise ConfigError(where, f"goal_head applies to kind 'nue' only, not {self.kind!r}")
         if self.max_depth <= 0 or self.uncertainty_scale <= 0:
             raise ConfigError(where, "max_depth and uncertainty_scale must be positive")
         if self.kind == "vgm":
@@ -244,14 +257,18 @@ class ModelConfig:
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain-data form for checkpoints and JSON (tuples become lists). ``gru_dim`` and the panorama's fields are
-        written only when set, and :data:`VGM_FIELDS` only for kind ``vgm``, so configs from before they existed keep
-        their exact dict."""
+        """Plain-data form for checkpoints and JSON (tuples become lists). ``gru_dim``, the panorama's fields,
+        ``goal_head`` and ``goal_match`` are written only when set, and :data:`VGM_FIELDS` only for kind ``vgm``, so
+        configs from before they existed keep their exact dict."""
         d = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
         if not d["gru_dim"]:
             del d["gru_dim"]
         if not d["panorama_dim"]:  # likewise the panorama's fields
             del d["panorama_dim"], d["panorama_shape"]
+        if not d["goal_head"]:
+            del d["goal_head"]
+        if not d["goal_match"]:
+            del d["goal_match"]
         if self.kind != "vgm":
             for k in VGM_FIELDS:
                 del d[k]
@@ -277,6 +294,8 @@ MODEL_PRESETS: dict[str, ModelConfig] = {
     "nue_gru": _NUE.replace(name="nue_gru", gru_dim=256),
     "nue_pano": _NUE.replace(name="nue_pano", panorama_dim=32),
     "nue_pano_gru": _NUE.replace(name="nue_pano_gru", panorama_dim=32, gru_dim=256),
+    "nue_goal": _NUE.replace(name="nue_goal", goal_head=True),
+    "nue_match": _NUE.replace(name="nue_match", goal_head=True, goal_match=32),
     "abl_none": _NUE.replace(name="abl_none", use_uncertainty=False, use_aux=False, use_cbam=False),
     "abl_fu": _NUE.replace(name="abl_fu", use_uncertainty=True, use_aux=False, use_cbam=False),
     "abl_at_cbam": _NUE.replace(name="abl_at_cbam", use_uncertainty=False, use_aux=True, use_cbam=True),

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from nue.policy.commit import LearnedGoalLocator, LearnedLocatorConfig
 from nue.policy.goal_pose import GoalPoseConfig, GoalPoseEstimator, GoalTracker, TrackerConfig
 from nue.policy.seen_map import SeenMap, SeenMapConfig
 from nue.sim.expert import ExpertConfig, PathDriver
@@ -63,10 +64,32 @@ class LastMileConfig:
     """Dropped after this many steps in a row without a path to the estimate on the map."""
     max_drive_steps: int = 120
     """Dropped after this many steps of driving toward one estimate."""
+    locator: str = "sift"
+    """Where measurements come from: ``sift`` (SLING's keypoints and PnP, :mod:`nue.policy.goal_pose`) or
+    ``learned`` (the wrapped policy's goal head, :mod:`nue.policy.commit`; the ``commit+`` methods)."""
+    learned: LearnedLocatorConfig = field(default_factory=LearnedLocatorConfig)
+    """The learned locator's settings (``locator="learned"``)."""
+
+    def __post_init__(self) -> None:
+        if self.locator not in LOCATORS:
+            raise ValueError(f"last-mile locator must be one of {', '.join(LOCATORS)}, got {self.locator!r}")
 
     def to_dict(self) -> dict:
-        """Every setting as plain JSON values (nested dicts), as records store it."""
-        return dataclasses.asdict(self)
+        """Every setting as plain JSON values (nested dicts), as records store it; the locator's entries only when
+        it is not ``sift`` (records from before it existed keep their exact settings)."""
+        d = dataclasses.asdict(self)
+        if self.locator == "sift":
+            del d["locator"], d["learned"]
+        return d
+
+    def replace(self, **changes) -> "LastMileConfig":
+        return dataclasses.replace(self, **changes)
+
+
+LOCATORS = ("sift", "learned")
+
+COMMIT_LAST_MILE = LastMileConfig(locator="learned", match_every=1, match_every_driving=1, follow_up_matches=10**6)
+"""The ``commit+`` methods' wrapper: the learned locator, read at every step (it costs nothing)."""
 
 
 class LastMileAgent:
@@ -86,7 +109,11 @@ class LastMileAgent:
         self.inner.reset(env, obs, seed)
         cfg, task = self.config, env.task
         self.task = task
-        self.estimator = GoalPoseEstimator(task.camera, env.floor_z, cfg.pose)
+        self.estimator: GoalPoseEstimator | LearnedGoalLocator
+        if cfg.locator == "learned":
+            self.estimator = LearnedGoalLocator(self.inner, cfg.learned)
+        else:
+            self.estimator = GoalPoseEstimator(task.camera, env.floor_z, cfg.pose)
         self.estimator.set_goal(obs["goal"])
         self.tracker = GoalTracker(cfg.tracker)
         self.map = SeenMap(task.camera, env.floor_z, obs["pose"][:2], cfg.map)

@@ -12,6 +12,8 @@ perception f_p, and attention-weighted fusion into action logits (eqs. 8-10, 13-
     [with ``panorama_dim``: f_pano = MLP(flatten(log1p(panorama / s))) joins f_cat1]
     [with ``gru_dim``: h_t = GRU(f_cat2, h_{t-1}); logits = MLP(h_t)]
     aux_angle = wrap(MLP_2layer(f_cog))
+    [with ``goal_match``: f_match = goal-view matching of rgb and goal (nue.policy.goal_match) joins f_cat1]
+    [with ``goal_head``: (goal-in-view logit, log goal distance) = MLP_2layer([f_cog, f_match])]
 
 Switches: ``use_uncertainty=False`` drops f_u (f_cat1 = [f_cog, f_p]), ``use_aux=False`` drops the
 angle head, ``use_cbam=False`` drops both CBAMs; a dropped part is ``None`` and has no parameters.
@@ -28,6 +30,7 @@ from torch import Tensor, nn
 from nue.policy.base import PolicyModel, PolicyOutput, State, wrap_angle_t
 from nue.policy.blocks import ConvBranch, mlp
 from nue.policy.config import ModelConfig
+from nue.policy.goal_match import GoalMatch
 from nue.policy.inputs import PolicyInput
 
 
@@ -76,9 +79,12 @@ class NUEPolicy(PolicyModel):
         self.f_cog = ConvBranch(c.cog_channels + 3, c.cognition_channels, c.map_grid, c.branch_dim, **cbam)
         self.f_p = ConvBranch(7 if c.goal_in_perception else 4, c.perception_channels, c.perception_grid, c.perception_dim, negative_slope=s)
         self.aux_head = mlp([c.branch_dim, c.aux_hidden, 1], s, final_activation=False) if c.use_aux else None
+        self.f_match = GoalMatch(c.goal_match, negative_slope=s) if c.goal_match else None
+        self.goal_head = (mlp([c.branch_dim + c.goal_match, c.aux_hidden, 2], s, final_activation=False)
+                          if c.goal_head else None)
         k, hp, wp = c.panorama_shape
         self.f_pano = mlp([k * hp * wp, 2 * c.panorama_dim, c.panorama_dim], s) if c.panorama_dim else None
-        fused = c.branch_dim * (2 if c.use_uncertainty else 1) + c.perception_dim + c.panorama_dim
+        fused = c.branch_dim * (2 if c.use_uncertainty else 1) + c.perception_dim + c.panorama_dim + c.goal_match
         self.fusion = FusionHead(fused, config)
         self.gru = nn.GRUCell(c.fusion_dim, c.gru_dim) if c.gru_dim else None
 
@@ -98,8 +104,8 @@ class NUEPolicy(PolicyModel):
         frame = torch.cat([inp.rgbd, inp.goal.to(inp.rgbd.dtype)], dim=1) if self.config.goal_in_perception else inp.rgbd
         return f_cog, f_u, self.f_p(frame)
 
-    def _fused(self, inp: PolicyInput) -> tuple[Tensor, Tensor | None]:
-        """(f_cat2 (B, fusion_dim), aux angle (B,) | None)."""
+    def _fused(self, inp: PolicyInput) -> tuple[Tensor, Tensor | None, Tensor | None]:
+        """(f_cat2 (B, fusion_dim), aux angle (B,) | None, goal head (B, 2) | None)."""
         f_cog, f_u, f_p = self.features(inp)
         parts = [f_cog, f_p] if f_u is None else [f_cog, f_u, f_p]
         if self.f_pano is not None:
@@ -107,9 +113,15 @@ class NUEPolicy(PolicyModel):
                 raise ValueError(f"model {self.config.name!r} reads the uncertainty panorama, but inp.panorama is None")
             pano = torch.log1p(inp.panorama.clamp_min(0.0) / self.config.uncertainty_scale)
             parts.append(self.f_pano(pano.reshape(pano.shape[0], -1).to(f_p.dtype)))
+        head_in = f_cog
+        if self.f_match is not None:
+            f_match = self.f_match(inp.rgbd[:, :3], inp.goal).to(f_p.dtype)
+            parts.append(f_match)
+            head_in = torch.cat([f_cog, f_match.to(f_cog.dtype)], dim=1)
         f_cat1 = torch.cat(parts, dim=1)
         aux = None if self.aux_head is None else wrap_angle_t(self.aux_head(f_cog)[:, 0])
-        return self.fusion.fused(f_cat1), aux
+        goal = None if self.goal_head is None else self.goal_head(head_in)
+        return self.fusion.fused(f_cat1), aux, goal
 
     def initial_state(self, batch_size: int, device: torch.device | str | None = None) -> State:
         if self.gru is None:
@@ -129,11 +141,12 @@ class NUEPolicy(PolicyModel):
         return self.gru(x, h.to(x.dtype))
 
     def forward(self, inp: PolicyInput, state: State = None, reset_mask: Tensor | None = None) -> PolicyOutput:
-        f_cat2, aux = self._fused(inp)
+        f_cat2, aux, goal = self._fused(inp)
+        view, dist = (None, None) if goal is None else (goal[:, 0], goal[:, 1])
         if self.gru is None:
-            return PolicyOutput(self.fusion.policy(f_cat2), aux, None)
+            return PolicyOutput(self.fusion.policy(f_cat2), aux, None, view, dist)
         h = self._step(f_cat2, state, reset_mask)
-        return PolicyOutput(self.fusion.policy(h), aux, (h,))
+        return PolicyOutput(self.fusion.policy(h), aux, (h,), view, dist)
 
     def forward_sequence(self, inp: PolicyInput, state: State = None, reset_mask: Tensor | None = None) -> PolicyOutput:
         """Reactive: T folded into B. With a GRU: the branches and fusion for all T * B steps in one batch, then the
@@ -141,7 +154,7 @@ class NUEPolicy(PolicyModel):
         if self.gru is None:
             return super().forward_sequence(inp, state, reset_mask)
         t, b = inp.rgbd.shape[:2]
-        f_cat2, aux = self._fused(inp.flatten_time())
+        f_cat2, aux, goal = self._fused(inp.flatten_time())
         x = f_cat2.reshape(t, b, -1)
         hs = []
         for i in range(t):
@@ -149,4 +162,5 @@ class NUEPolicy(PolicyModel):
             state = (h,)
             hs.append(h)
         logits = self.fusion.policy(torch.cat(hs, dim=0))
-        return PolicyOutput(logits.reshape(t, b, -1), None if aux is None else aux.reshape(t, b), state)
+        view, dist = (None, None) if goal is None else (goal[:, 0].reshape(t, b), goal[:, 1].reshape(t, b))
+        return PolicyOutput(logits.reshape(t, b, -1), None if aux is None else aux.reshape(t, b), state, view, dist)

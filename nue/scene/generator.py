@@ -11,7 +11,8 @@ style and every parameter are in :mod:`nue.scene.house_config`). ``generate_hous
 - ``house.json``: seed, config, rooms, doors, furniture and pictures (metres) for figures/tests.
 
 Same seed and config -> byte-identical files. ``SPLITS`` fixes the 21 train / 14 val seeds and the 14
-seeds of ``val_plain``, whose houses are in the held-out style (``SPLIT_STYLES``).
+seeds of ``val_plain``, whose houses are in the held-out style (``SPLIT_STYLES``); ``train_diverse`` and
+``val_pale`` houses draw their config per house from a style distribution (:mod:`nue.scene.house_styles`).
 """
 
 from __future__ import annotations
@@ -29,7 +30,9 @@ from nue.errors import ConfigError, SceneError
 from nue.scene import house_textures as tx
 from nue.scene.house_config import STYLES, HouseConfig, config_dict, get_style  # noqa: F401  (HouseConfig re-exported)
 from nue.scene.house_furnish import furnish, hang_pictures
-from nue.scene.house_layout import Plan, PlanFailure, PlanParams, make_plan
+from nue.scene.house_layout import Plan, PlanFailure, PlanParams
+from nue.scene.house_plans import make_any_plan
+from nue.scene.house_styles import STYLE_DISTRIBUTIONS, sample_style
 from nue.scene.house_mesh import Material, build_mesh, write_obj
 from nue.scene.house_trav import check_house, map_size, trav_map
 from nue.scene.scene import MESH_NAME, Scene, content_hash
@@ -41,12 +44,17 @@ SPLITS: dict[str, tuple[int, ...]] = {
     "train": tuple(range(1000, 1021)),
     "val": tuple(range(2000, 2014)),
     "val_plain": tuple(range(3000, 3014)),
+    "train_diverse": tuple(range(4000, 4042)),
+    "val_pale": tuple(range(5000, 5014)),
 }
-"""Fixed house seeds: 21 training houses, 14 validation houses, 14 validation houses of the held-out style
+"""Fixed house seeds: 21 training houses, 14 validation houses, 14 validation houses of the held-out style,
+42 training houses of the ``diverse`` style distribution, 14 houses of the held-out ``pale`` family
 (all disjoint)."""
 
-SPLIT_STYLES: dict[str, str] = {"val_plain": "plain"}
-"""Scene style (``STYLES``) of each split that is not ``gibson``: models never train on these."""
+SPLIT_STYLES: dict[str, str] = {"val_plain": "plain", "train_diverse": "diverse", "val_pale": "pale"}
+"""Scene style of each split that is not ``gibson``: a fixed style of ``STYLES``, or a style distribution of
+``house_styles.STYLE_DISTRIBUTIONS`` (a config drawn per house from its seed). Models train on ``train`` or
+``train_diverse``; ``val_plain`` and ``val_pale`` are held-out families outside ``diverse``'s support."""
 
 HOUSE_FILES = ("mesh_z_up.obj", "mesh_z_up.mtl", "floors.txt", "floor_trav_0.png", "house.json")
 """Files every complete house folder holds (plus ``textures/``)."""
@@ -64,7 +72,7 @@ def _plan_params(rng, cfg: HouseConfig) -> PlanParams:
     return PlanParams(long_side, short_side, max(1, _cm(cfg.wall_thickness) // 2), _cm(cfg.min_room_side),
                       (_cm(cfg.corridor_width[0]), _cm(cfg.corridor_width[1])),
                       (_cm(cfg.door_width[0]), _cm(cfg.door_width[1])), 15, cfg.rooms[1], cfg.rooms[0],
-                      cfg.corridor_prob, cfg.extra_door_prob, cfg.room_area, cfg.max_extra_doors)
+                      cfg.corridor_prob, cfg.extra_door_prob, cfg.room_area, cfg.max_extra_doors, cfg.layout)
 
 
 def _shared_wall_colours(rng, look, hue0: float) -> list[np.ndarray]:
@@ -174,7 +182,7 @@ def _attempt(seed: int, attempt: int, cfg: HouseConfig):
     """
     rng = np.random.default_rng([seed, attempt])
     try:
-        plan = make_plan(rng, _plan_params(rng, cfg))
+        plan = make_any_plan(rng, _plan_params(rng, cfg))
     except PlanFailure:
         return None
     items = furnish(rng, plan, cfg.furniture_density, _cm(cfg.door_clearance), _cm(cfg.min_passage) // 2,
@@ -292,10 +300,25 @@ def _remove_stale_temps(root: Path, name: str) -> None:
 
 
 def split_config(split: str) -> HouseConfig:
-    """The generator config (scene style) of a split's houses: ``SPLIT_STYLES``, else ``gibson``."""
+    """The generator config (scene style) of a split's houses: ``SPLIT_STYLES``, else ``gibson``; a split
+    whose houses draw their style from a distribution -> ConfigError (use :func:`house_config`)."""
     if split not in SPLITS:
         raise ConfigError(split, f"unknown split; choose one of {sorted(SPLITS)}")
-    return get_style(SPLIT_STYLES.get(split, "gibson"))
+    name = SPLIT_STYLES.get(split, "gibson")
+    if name in STYLE_DISTRIBUTIONS:
+        raise ConfigError(split, f"houses of this split draw their style from the {name!r} distribution, one per house")
+    return get_style(name)
+
+
+def house_config(split: str, index: int) -> HouseConfig:
+    """The generator config of house ``index`` of ``split``: the split's fixed style, or the style drawn
+    from its distribution for that house's seed (:func:`nue.scene.house_styles.sample_style`)."""
+    if split not in SPLITS:
+        raise ConfigError(split, f"unknown split; choose one of {sorted(SPLITS)}")
+    name = SPLIT_STYLES.get(split, "gibson")
+    if name in STYLE_DISTRIBUTIONS:
+        return sample_style(STYLE_DISTRIBUTIONS[name], SPLITS[split][index])
+    return get_style(name)
 
 
 def generate_split(split: str, out_root: str | Path, config: HouseConfig | None = None,
@@ -306,16 +329,18 @@ def generate_split(split: str, out_root: str | Path, config: HouseConfig | None 
     leaves no half-written house. A folder that is not an intact copy of its house
     (:func:`house_problem`) is refused with :class:`SceneError`; with ``force`` it is regenerated if
     its ``house.json`` shows our generator made it (a folder of the user's is never overwritten).
-    ``config`` defaults to the split's style (:func:`split_config`). Unknown split -> ConfigError.
+    ``config`` defaults to each house's style (:func:`house_config`). Unknown split -> ConfigError.
     """
-    config = config or split_config(split)
-    config.validate()
+    if split not in SPLITS:
+        raise ConfigError(split, f"unknown split; choose one of {sorted(SPLITS)}")
     root = Path(out_root)
     root.mkdir(parents=True, exist_ok=True)
     paths = []
     for k, seed in enumerate(SPLITS[split]):
+        house_cfg = config or house_config(split, k)
+        house_cfg.validate()
         folder = root / f"{split}_{k:02d}"
-        problem = house_problem(folder, seed, config) if folder.exists() else None
+        problem = house_problem(folder, seed, house_cfg) if folder.exists() else None
         if folder.exists() and problem is None:
             status = "kept"
         elif problem is not None and not (force and _is_ours(folder)):
@@ -323,7 +348,7 @@ def generate_split(split: str, out_root: str | Path, config: HouseConfig | None 
                     else "it is not a house nue generated: move it away or use another --out")
             raise SceneError(folder, f"{problem}; {hint}")
         else:
-            _generate_into(folder, seed, config)
+            _generate_into(folder, seed, house_cfg)
             status = "regenerated" if problem else "generated"
         paths.append(folder)
         if progress:
@@ -337,7 +362,7 @@ def ensure_house(split: str, index: int, root: str | Path, config: HouseConfig |
     (:func:`house_problem`) is refused with :class:`SceneError`, never overwritten."""
     if split not in SPLITS:
         raise ConfigError(split, f"unknown split; choose one of {sorted(SPLITS)}")
-    config = config or split_config(split)
+    config = config or house_config(split, index)
     seed = SPLITS[split][index]
     folder = Path(root) / f"{split}_{index:02d}"
     if not folder.exists():

@@ -9,6 +9,9 @@ shallower and lower furniture, higher walls, mostly recursive-split plans with s
 loop doors, fewer pictures. Same Gibson layout conventions (mesh, ``floors.txt``, 1 cm traversability
 map, one floor), same navigation constraints (doorways, passages, free extent).
 
+Styles drawn per house from a distribution (the ``diverse`` training houses, the held-out ``pale`` family) are
+:mod:`nue.scene.house_styles`'s; each house's drawn ``HouseConfig`` is recorded like a fixed style's.
+
 ``house.json`` records :func:`config_dict`: fields added after generator version 3 appear only when they
 differ from their defaults, so houses generated before them stay intact copies of their seed.
 """
@@ -19,6 +22,7 @@ import dataclasses
 from dataclasses import dataclass, field
 
 from nue.errors import ConfigError
+from nue.scene.house_plans import LAYOUTS
 from nue.scene.navgrid import ROBOT_RADIUS
 
 SURFACES = ("textured", "plain")
@@ -107,7 +111,8 @@ class HouseConfig:
     max_attempts: int = 40
     """Random draws tried per seed before giving up (each attempt is deterministic)."""
     style: str = "gibson"
-    """Name of the scene style (a key of ``STYLES``) these parameters belong to."""
+    """Name of the scene style (a key of ``STYLES``, or of ``house_styles.STYLE_DISTRIBUTIONS`` for a house
+    whose parameters were drawn from a style distribution) these parameters belong to."""
     room_area: tuple[float, float] = (12.0, 20.0)
     """BSP layouts: range of the mean room area, m^2, drawn per house (footprint area / it = the room count)."""
     max_extra_doors: int = 2
@@ -116,6 +121,9 @@ class HouseConfig:
     """Multipliers on every furniture template's width (along its wall), depth and height ranges."""
     appearance: Appearance = field(default_factory=Appearance)
     """How the surfaces look."""
+    layout: str = ""
+    """Floor-plan layout of every house (one of ``house_plans.LAYOUTS``); '' = the original mix: a hallway
+    layout with probability ``corridor_prob``, else recursive splits."""
 
     def validate(self) -> None:
         """Raise ConfigError on inconsistent values."""
@@ -142,6 +150,8 @@ class HouseConfig:
             raise ConfigError("HouseConfig", "max_attempts must be >= 1 and furniture_density >= 0")
         if self.room_area[0] <= 0 or self.max_extra_doors < 0 or min(self.furniture_scale) <= 0:
             raise ConfigError("HouseConfig", "room_area and furniture_scale must be positive, max_extra_doors >= 0")
+        if self.layout and self.layout not in LAYOUTS:
+            raise ConfigError("HouseConfig", f"layout must be '' or one of {', '.join(LAYOUTS)}, got {self.layout!r}")
         self.appearance.validate()
 
     def replace(self, **changes) -> "HouseConfig":
@@ -149,7 +159,7 @@ class HouseConfig:
         return dataclasses.replace(self, **changes)
 
 
-ADDED_FIELDS = ("style", "room_area", "max_extra_doors", "furniture_scale", "appearance")
+ADDED_FIELDS = ("style", "room_area", "max_extra_doors", "furniture_scale", "appearance", "layout")
 """HouseConfig fields added after generator version 3 (recorded in ``house.json`` only when not default)."""
 
 

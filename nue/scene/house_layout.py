@@ -10,7 +10,17 @@ a wall thickness. Two layouts:
 - ``bsp``: recursive binary splits of the footprint, one door in every dividing wall, which
   connects the two halves of every split and hence the whole house.
 
-Both may add extra doors between neighbouring rooms (loops, at most ``max_extra_doors``). Plans are
+Three more layouts live in :mod:`nue.scene.house_plans`, used by the style distributions of
+:mod:`nue.scene.house_styles` (chosen with ``PlanParams.layout``; the default '' keeps the original
+corridor / BSP mix and its random stream):
+
+- ``l_hall``: an L-shaped hallway (two hallway rectangles joined by a full-width opening), rooms along
+  both legs and beside the corner;
+- ``t_hall``: a hallway across the whole long side with a stem from its middle to the outer wall;
+- ``open_plan``: two or three open zones (living room, kitchen, dining room) joined by wide openings,
+  with private rooms in a band along one long side (or none).
+
+All layouts may add extra doors between neighbouring rooms (loops, at most ``max_extra_doors``). Plans are
 built with the long axis along x and then rotated / mirrored at random, so houses are centred on the
 world origin.
 """
@@ -114,6 +124,8 @@ class PlanParams:
     """BSP: range of the mean room area, m^2."""
     max_extra_doors: int = 2
     """At most this many loop doors per house."""
+    layout: str = ""
+    """One of :data:`LAYOUTS` for every draw, or '' for the original mix (``corridor_prob``: corridor, else BSP)."""
 
 
 def shared_wall(a: Rect, b: Rect) -> tuple[int, int, int, int] | None:
@@ -272,8 +284,8 @@ def _extra_doors(rng, p: PlanParams, plan: Plan, pairs: list[tuple[int, int]]) -
 
 
 def _name_rooms(rng, plan: Plan) -> None:
-    """Give every non-hallway room a kind (largest: living room, small: bathroom) and a unique name."""
-    idx = [i for i, r in enumerate(plan.rooms) if r.kind != "hallway"]
+    """Give every room without a kind one (largest: living room, small: bathroom), then every room a unique name."""
+    idx = [i for i, r in enumerate(plan.rooms) if not r.kind]  # rooms a layout named itself keep their kind
     idx.sort(key=lambda i: (-plan.rooms[i].area_m2, i))
     kinds = ["living room"]
     pool = ["kitchen", "bedroom", "bathroom", "office", "bedroom", "dining room", "bedroom"]

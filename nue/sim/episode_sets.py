@@ -42,6 +42,9 @@ class EpisodeSetSpec:
     """Task preset whose difficulty bins the episodes fill."""
     description: str = ""
     """What the set is for (shown in reports)."""
+    held_out: bool = False
+    """Whether the set's houses are a held-out style family (outside every training style; the generalisation
+    table of ``nue report --generalisation`` compares models on these sets with the reference set)."""
 
 
 EPISODE_SETS: dict[str, EpisodeSetSpec] = {
@@ -50,11 +53,20 @@ EPISODE_SETS: dict[str, EpisodeSetSpec] = {
     "val252": EpisodeSetSpec("val252", "val", per_bin=4, seed=1, extends="val",
                              description="14 validation houses x 3 difficulties x 6 = 252 episodes; the first 6 of "
                                          "each file are episodes/val"),
-    "val_plain": EpisodeSetSpec("val_plain", "val_plain", per_bin=6, seed=0,
+    "val_plain": EpisodeSetSpec("val_plain", "val_plain", per_bin=6, seed=0, held_out=True,
                                 description="14 houses of the held-out plain scene style x 3 difficulties x 6 = "
                                             "252 episodes"),
+    "val_pale": EpisodeSetSpec("val_pale", "val_pale", per_bin=6, seed=0, held_out=True,
+                               description="14 houses of the held-out pale family (flat near-white walls, open plan "
+                                           "or L hallway; outside the diverse training styles) x 3 difficulties x 6 "
+                                           "= 252 episodes"),
 }
 """The committed sets (``episodes/<name>/``); ``episodes/select`` (training houses) is closed-loop selection's."""
+
+
+def held_out_sets() -> list[str]:
+    """Names of the sets whose houses are a held-out style family, in :data:`EPISODE_SETS` order."""
+    return [name for name, spec in EPISODE_SETS.items() if spec.held_out]
 
 
 def get_episode_set(name: str) -> EpisodeSetSpec:

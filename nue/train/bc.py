@@ -67,6 +67,9 @@ class TrainConfig:
     """Learning rate at the last step relative to the peak."""
     aux_weight: float = 0.5
     """lambda of the goal-angle L1 loss (radians) when the model has the auxiliary head."""
+    goal_weight: float = 0.5
+    """Weight of the exploitation head's loss (models with ``goal_head``): binary cross-entropy of goal-in-view
+    plus the L1 of the log distance on the steps with the goal in view."""
     class_balance: float = 0.5
     """Class weights (n / n_c)^p normalised to mean 1: p = 0 none, 1 inverse frequency, 0.5 in between."""
     grad_clip: float = 5.0
@@ -144,8 +147,11 @@ def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainCo
     inp = batch.inp.with_image_dtype(torch.bfloat16) if bf16 else batch.inp  # the same numbers, half the bytes
     with torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
         out = net(inp, model.initial_state(reset_t.shape[1], device), reset_t)
-    out = PolicyOutput(out.logits.float(), None if out.aux_angle is None else out.aux_angle.float(), out.state)
-    return bc_loss(out, batch, weights, cfg.aux_weight)
+    def f32(x):
+        return None if x is None else x.float()
+
+    out = PolicyOutput(out.logits.float(), f32(out.aux_angle), out.state, f32(out.goal_view), f32(out.goal_log_distance))
+    return bc_loss(out, batch, weights, cfg.aux_weight, cfg.goal_weight)
 
 
 def _dist():
@@ -178,14 +184,30 @@ def class_weights(counts: np.ndarray, power: float) -> torch.Tensor:
     return torch.as_tensor(w / w.mean(), dtype=torch.float32)
 
 
-def bc_loss(out, batch, weights: torch.Tensor, aux_weight: float):
-    """(total, cross-entropy, angle L1 or None) of a forward_sequence output against a batch."""
+def bc_loss(out, batch, weights: torch.Tensor, aux_weight: float, goal_weight: float = 0.0):
+    """(total, cross-entropy, angle L1 or None) of a forward_sequence output against a batch; the total includes
+    ``goal_weight`` x :func:`goal_head_loss` when the model has the exploitation head."""
     logits = out.logits.reshape(-1, out.logits.shape[-1])
     ce = F.cross_entropy(logits, batch.action.reshape(-1), weight=weights.to(logits.device))
+    total = ce
+    if out.goal_view is not None and batch.goal_in_view is not None:
+        total = total + goal_weight * goal_head_loss(out, batch)
     if out.aux_angle is None:
-        return ce, ce, None
+        return total, ce, None
     aux = angle_l1_loss(out.aux_angle.reshape(-1), batch.goal_angle.reshape(-1))
-    return ce + aux_weight * aux, ce, aux
+    return total + aux_weight * aux, ce, aux
+
+
+def goal_head_loss(out, batch) -> torch.Tensor:
+    """The exploitation head's loss: ``BCE(goal_view, in_view) + mean over in-view steps |log_d - log(d)|`` (the
+    distance term is 0 for a batch without an in-view step; distances are floored at 0.1 m before the log)."""
+    view = batch.goal_in_view.reshape(-1).to(out.goal_view.dtype)
+    bce = F.binary_cross_entropy_with_logits(out.goal_view.reshape(-1), view)
+    mask = view > 0.5
+    if not bool(mask.any()):
+        return bce
+    target = torch.log(batch.goal_distance.reshape(-1)[mask].clamp_min(0.1))
+    return bce + (out.goal_log_distance.reshape(-1)[mask] - target).abs().mean()
 
 
 @dataclass
@@ -266,8 +288,11 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
     else:
         sampler = BufferSampler(data, per_rank, rng, cfg.buffer_episodes, rank=0, world=1)
     # Before a resume restores torch's generator: building the memory's field (policy_meta) draws from it.
+    stored_cfg = dataclasses.asdict(cfg)
+    if not model_cfg.goal_head:  # only models with the exploitation head record its weight (older checkpoints' dicts)
+        del stored_cfg["goal_weight"]
     meta = policy_meta(task, manifest.memory, model_cfg, manifest.scenes, manifest.hash(),
-                       {**dataclasses.asdict(cfg), "precision_resolved": resolve_precision(cfg.precision, device)},
+                       {**stored_cfg, "precision_resolved": resolve_precision(cfg.precision, device)},
                        {"episodes": data.n_episodes, "steps": len(data),
                                                  "skipped": [str(p) for p, _ in data.skipped]})
     if resume and (out_dir / "last.pt").is_file():

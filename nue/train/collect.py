@@ -34,6 +34,7 @@ from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
 from nue.scene.scene import Scene
 from nue.sim.env import make_env
+from nue.sim.seen import goal_in_view
 from nue.sim.episode_gen import EpisodeGenConfig, generate_episodes
 from nue.sim.episodes import Episode, load_episodes, save_episodes
 from nue.sim.task import get_task
@@ -310,6 +311,9 @@ class DemoRecorder:
     goal: dict | None = None
     panorama: list = field(default_factory=list)
     """Per step the memory's I_u panorama (K, hp, wp) float16, if its preset renders one."""
+    view_range: float = 3.0
+    """Range of the ``goal_in_view`` label, metres (the exploring expert's switch: ``ExplorerConfig.view_range``)."""
+    _goal_cell: tuple[int, int] | None = None
 
     def __call__(self, s) -> None:
         cfg = self.config
@@ -326,6 +330,8 @@ class DemoRecorder:
             "action": s.action if label is None else label,
             "executed": s.action,
             "goal_angle": float(s.info["goal_angle"]),
+            "goal_distance": float(s.info["euclidean_distance"]),
+            "goal_in_view": self._goal_in_view(s),
             "pose": np.asarray(s.obs["pose"], dtype=np.float32),
         })
         if self.goal is None:  # the goal photo as the map-size (NUE) and frame-size (baselines) inputs see it
@@ -336,6 +342,16 @@ class DemoRecorder:
             self.goal = {"goal_map": goal_map[0].numpy().astype(np.float16),
                          "goal_frame": frame_goal[0].numpy().astype(np.float16)}
 
+    def _goal_in_view(self, s) -> bool:
+        """The exploring expert's switch test at this step (:func:`nue.sim.seen.goal_in_view`): the label of the
+        exploitation heads (the robot sees the goal's floor within ``view_range``)."""
+        env = s.env
+        goal = np.asarray(env.nav_goal_xy, dtype=np.float64)
+        if self._goal_cell is None:
+            self._goal_cell = tuple(int(v) for v in env.navgrid.cell_of(goal))
+        return goal_in_view(s.obs["depth"], s.obs["pose"], self._goal_cell, goal, env.task.camera, env.navgrid,
+                            env.floor_z, self.view_range)
+
     def arrays(self) -> dict[str, np.ndarray]:
         st = self.steps
         return {
@@ -343,6 +359,8 @@ class DemoRecorder:
             "action": np.array([x["action"] for x in st], dtype=np.int8),
             "executed": np.array([x["executed"] for x in st], dtype=np.int8),
             "goal_angle": np.array([x["goal_angle"] for x in st], dtype=np.float32),
+            "goal_distance": np.array([x["goal_distance"] for x in st], dtype=np.float32),
+            "goal_in_view": np.array([x["goal_in_view"] for x in st], dtype=np.int8),
             "pose": np.stack([x["pose"] for x in st]),
             **({"panorama": np.stack(self.panorama)} if self.panorama else {}),
             **self.goal,

@@ -36,6 +36,11 @@ class Batch:
     """True goal angle, radians, float."""
     reset: torch.Tensor | None = None
     """(T, B) bool for sequences: True where an episode starts."""
+    goal_in_view: torch.Tensor | None = None
+    """Labels of the exploitation head (models with ``goal_head``): goal in view (the exploring expert's switch
+    test), float 0/1."""
+    goal_distance: torch.Tensor | None = None
+    """... and the robot's straight-line distance to the goal, metres."""
 
 
 _SAME = ("task", "memory", "model_layout")
@@ -106,6 +111,9 @@ class DemoSet:
         if want != have:
             raise DataError(manifest_path(self.root), f"data layout {have.to_dict()} does not fit model "
                                                       f"{model_cfg.name!r} ({want.to_dict()})")
+        if model_cfg.goal_head and self.episodes and "goal_in_view" not in self.episodes[0]:
+            raise DataError(self.files[0], f"model {model_cfg.name!r} trains a goal head on 'goal_in_view' / "
+                                           "'goal_distance' labels, which this collection predates (collect again)")
         if model_cfg.uses_panorama and self.episodes:
             pano = self.episodes[0].get("panorama")
             if pano is None or tuple(pano.shape[1:]) != tuple(model_cfg.panorama_shape):
@@ -146,7 +154,11 @@ class DemoSet:
             panorama=shaped(gather("panorama")) if model_cfg.uses_panorama else None,
         )
         action, angle = gather("action", np.int64), gather("goal_angle")
-        return Batch(inp, action.reshape(shape).to(device), angle.reshape(shape).to(device))
+        view = dist = None
+        if model_cfg.goal_head:
+            view, dist = shaped(gather("goal_in_view")).reshape(shape), shaped(gather("goal_distance")).reshape(shape)
+        return Batch(inp, action.reshape(shape).to(device), angle.reshape(shape).to(device),
+                     goal_in_view=view, goal_distance=dist)
 
 
 def episode_groups(ep: np.ndarray) -> list[tuple[int, np.ndarray]]:

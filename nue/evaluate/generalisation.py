@@ -1,0 +1,126 @@
+"""The generalisation table (issue 43): per model, SR / SPL on a reference set of the training style (``val252``)
+and on each held-out style family (``val_plain``, ``val_pale``), the drop from the reference to each family, and
+the paired differences between models on each family.
+
+A drop compares two sets of different houses, so it is not paired: its 95% interval is a bootstrap that resamples
+each set's episodes independently (10,000 resamples, seed 0), each episode's result the mean over the method's
+training seeds that ran it. Several training seeds of a method (runs ``<model>@s<k>``) are one row of seed means,
+as in Table I; the paired differences on a family are :func:`nue.evaluate.paired.paired_differences` (seed-pooled
+when several seeds exist). Earlier recipes' rows (``*_v<N>``) are left out, as in Table I.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from nue.evaluate.paired import METRIC_FNS, paired_differences
+from nue.evaluate.table import Cell, build_table, by_method_and_seed, method_label, order_methods
+from nue.sim.record import EpisodeRecord
+
+
+@dataclass(frozen=True)
+class Drop:
+    """Reference-set value minus family value of one metric (positive = worse on the family)."""
+
+    mean: float
+    """Difference of the two sets' means (SR as a fraction)."""
+    lo: float
+    """2.5th percentile of the independent bootstrap of the two sets."""
+    hi: float
+    """97.5th percentile."""
+
+
+@dataclass(frozen=True)
+class GeneralisationRow:
+    """One model's cells on the reference set and on every family, and its drops."""
+
+    method: str
+    """Canonical method key."""
+    cells: dict[str, Cell]
+    """Set name -> the total cell (seed means with several seeds), for the sets the model ran."""
+    drops: dict[str, dict[str, Drop]]
+    """Family name -> metric (``sr``, ``spl``) -> drop from the reference set."""
+
+
+def _episode_means(records: Sequence[EpisodeRecord], metric: str) -> np.ndarray:
+    """Per episode (scene, episode id), the mean of ``metric`` over the runs (training seeds) that ran it."""
+    acc: dict[tuple[str, str], list[float]] = {}
+    for r in records:
+        acc.setdefault((r.scene, r.episode_id), []).append(METRIC_FNS[metric](r))
+    return np.array([np.mean(acc[k]) for k in sorted(acc)], dtype=float)
+
+
+def independent_drop(a: np.ndarray, b: np.ndarray, n_boot: int = 10_000, seed: int = 0) -> Drop:
+    """mean(a) - mean(b) with a 95% interval from resampling ``a`` and ``b`` independently."""
+    rng = np.random.default_rng(seed)
+    ma = a[rng.integers(0, len(a), (n_boot, len(a)))].mean(1)
+    mb = b[rng.integers(0, len(b), (n_boot, len(b)))].mean(1)
+    lo, hi = np.percentile(ma - mb, [2.5, 97.5])
+    return Drop(float(a.mean() - b.mean()), float(lo), float(hi))
+
+
+def _current(records: Sequence[EpisodeRecord]) -> list[EpisodeRecord]:
+    from nue.evaluate.results_md import is_earlier_recipe
+
+    return [r for r in records if not is_earlier_recipe(r.method)]
+
+
+def generalisation_rows(sets: Mapping[str, Sequence[EpisodeRecord]], reference: str,
+                        families: Sequence[str]) -> list[GeneralisationRow]:
+    """A row per model that ran ``reference`` and at least one of ``families`` (names of ``sets``)."""
+    current = {name: _current(sets[name]) for name in [reference, *families] if name in sets}
+    cells = {name: {row.method: row.cells["total"] for row in build_table(recs)} for name, recs in current.items()}
+    by_set = {name: {key: [r for run in seeds.values() for r in run] for key, seeds in by_method_and_seed(recs).items()}
+              for name, recs in current.items()}
+    rows = []
+    for method in order_methods(cells.get(reference, {})):
+        ran = [f for f in families if method in cells.get(f, {})]
+        if not ran:
+            continue
+        drops = {f: {m: independent_drop(_episode_means(by_set[reference][method], m),
+                                         _episode_means(by_set[f][method], m)) for m in ("sr", "spl")} for f in ran}
+        rows.append(GeneralisationRow(method, {n: cells[n][method] for n in [reference, *ran]}, drops))
+    return rows
+
+
+def _cell(c: Cell | None) -> str:
+    return "–" if c is None or c.n == 0 else f"{100 * c.sr:.1f} / {c.spl:.3f}"
+
+
+def _drop(d: Drop | None, scale: float, spec: str) -> str:
+    return "–" if d is None else f"{scale * d.mean:+{spec}} [{scale * d.lo:+{spec}}, {scale * d.hi:+{spec}}]"
+
+
+def generalisation_markdown(sets: Mapping[str, Sequence[EpisodeRecord]], reference: str,
+                            families: Sequence[str]) -> str:
+    """The table of :func:`generalisation_rows`, then the paired differences to NUE on each family ('' when no
+    model ran the reference set and a family)."""
+    from nue.evaluate.report import paired_markdown
+
+    rows = generalisation_rows(sets, reference, families)
+    if not rows:
+        return ""
+    fams = [f for f in families if any(f in r.drops for r in rows)]
+    head = ["method", f"`{reference}` SR % / SPL"]
+    for f in fams:
+        head += [f"`{f}` SR % / SPL", "SR drop, points [95% CI]", "SPL drop [95% CI]"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        cells = [method_label(r.method), _cell(r.cells.get(reference))]
+        for f in fams:
+            d = r.drops.get(f, {})
+            cells += [_cell(r.cells.get(f)), _drop(d.get("sr"), 100, ".1f"), _drop(d.get("spl"), 1, ".3f")]
+        lines.append("| " + " | ".join(cells) + " |")
+    parts = ["\n".join(lines) + "\n",
+             f"Drop: `{reference}` minus the family (positive = worse on the held-out style); sets of different houses, "
+             "so the interval resamples each set's episodes independently (10,000 resamples, seed 0), each episode "
+             "the mean over a model's training seeds. SR / SPL: seed means with several seeds.\n"]
+    for f in fams:
+        diffs = paired_differences(_current(sets[f]))
+        if diffs:
+            parts.append(f"Paired differences to NUE on `{f}` (95% paired bootstrap; seed-pooled with several "
+                         f"seeds):\n\n{paired_markdown(diffs)}")
+    return "\n".join(parts)
