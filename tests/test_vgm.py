@@ -178,6 +178,7 @@ def tiny_vgm_run(tmp_path_factory):
     return root
 
 
+@pytest.mark.timeout(900)  # with the tiny collection (~15 s idle): ~250 s on a machine loaded 4x over
 def test_nue_train_vgm_pretrains_the_embedding_then_imitates_and_checkpoints_round_trip(tiny_vgm_run):
     from nue.policy.checkpoint import load_checkpoint, load_policy
 
@@ -192,6 +193,7 @@ def test_nue_train_vgm_pretrains_the_embedding_then_imitates_and_checkpoints_rou
     assert any(not torch.equal(fresh[k], ck["model_state"][f"embed.{k}"]) for k in fresh if "running" not in k)
 
 
+@pytest.mark.timeout(900)  # with the tiny collection (~15 s idle): ~250 s on a machine loaded 4x over
 def test_nue_eval_runs_a_vgm_checkpoint(tiny_vgm_run, box_scene, box_nav, box_renderer):
     import json
 
@@ -211,6 +213,7 @@ def test_nue_eval_runs_a_vgm_checkpoint(tiny_vgm_run, box_scene, box_nav, box_re
     assert rec["method"] == "vgm" and 1 <= rec["steps"] <= 12
 
 
+@pytest.mark.timeout(900)  # with the tiny collection (~15 s idle): ~250 s on a machine loaded 4x over
 def test_vgm_imitation_loss_falls_on_the_tiny_collection(tiny_vgm_run, tmp_path):
     """40 steps of behaviour cloning (after 4 contrastive steps) bring the loss on every training step, the graph built
     along each whole episode, well below the initial one."""
