@@ -283,6 +283,9 @@ def test_output_shapes(name, map_size):
     assert torch.isfinite(out.logits).all()
     if cfg.recurrent:
         expected = [(2, cfg.gru_dim)] if cfg.gru_dim else [(2, cfg.lstm_dim)] * 2
+        if cfg.kind == "vgm":  # the LSTM's (h, c), then the graph: nodes, mask, adjacency, visits, current node, step
+            n, e = cfg.graph_nodes, cfg.embed_dim
+            expected += [(2, n, e), (2, n), (2, n, n), (2, n), (2,), (2,)]
         assert [s.shape for s in out.state] == expected and [s.shape for s in seq.state] == expected
     else:
         assert out.state is None and seq.state is None
@@ -297,6 +300,8 @@ def test_aux_head_works_on_baselines_too():
 @pytest.mark.parametrize("name", ACTING_PRESETS)
 def test_gradients_reach_every_enabled_parameter(name):
     cfg = get_model_config(name)
+    if cfg.kind == "vgm":  # every frame a new node, so the attention has two nodes to weigh at the second step
+        cfg = cfg.replace(graph_threshold=2.0)
     torch.manual_seed(0)
     model = build_model(cfg).train()
     gen = torch.Generator().manual_seed(2)
@@ -313,6 +318,9 @@ def test_gradients_reach_every_enabled_parameter(name):
         loss = loss + out.goal_view.sum() + out.goal_log_distance.square().sum()
     loss.backward()
     for n, p in model.named_parameters():
+        if not p.requires_grad:  # VGM's embedding network: frozen after its contrastive pre-training
+            assert cfg.kind == "vgm" and n.startswith("embed.") and p.grad is None, n
+            continue
         assert p.grad is not None, n
         assert torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0, n
     assert inp.rgbd.grad is not None

@@ -1,4 +1,4 @@
-"""Policy networks: NUE (uncertainty + feature maps of the NeRF memory), its ablations, and the FR / Nav-A3C baselines.
+"""Policy networks: NUE (uncertainty + feature maps of the NeRF memory), its ablations, and the FR / Nav-A3C / VGM baselines.
 
 Every model shares one interface (:class:`PolicyModel`)::
 
@@ -20,9 +20,10 @@ from nue.policy.config import ABLATION_PRESETS, MODEL_PRESETS, ModelConfig, get_
 from nue.policy.inputs import PolicyInput, prepare_goal, prepare_input
 from nue.policy.nrns_model import DistanceNetwork
 from nue.policy.nue_model import FusionHead, NUEPolicy
+from nue.policy.vgm_model import VGMPolicy
 
 _KINDS: dict[str, type[PolicyModel]] = {"nue": NUEPolicy, "fr": FRPolicy, "nav_a3c": NavA3CPolicy,
-                                     "nrns": DistanceNetwork}
+                                     "nrns": DistanceNetwork, "vgm": VGMPolicy}
 
 
 def build_model(config: ModelConfig | str) -> PolicyModel:
@@ -34,6 +35,6 @@ def build_model(config: ModelConfig | str) -> PolicyModel:
 __all__ = [
     "ABLATION_PRESETS", "CBAM", "ChannelAttention", "ConvBranch", "DistanceNetwork", "FRPolicy", "FusionHead", "MODEL_PRESETS",
     "ModelConfig", "NUEPolicy", "NavA3CPolicy", "PolicyInput", "PolicyModel", "PolicyOutput", "ResidualBlock",
-    "SpatialAttention", "State", "SubsampledPointwiseConv", "angle_l1_loss", "build_model", "choose_actions", "detach_state", "get_model_config",
+    "SpatialAttention", "State", "SubsampledPointwiseConv", "VGMPolicy", "angle_l1_loss", "build_model", "choose_actions", "detach_state", "get_model_config",
     "prepare_goal", "prepare_input", "wrap_angle_t",
 ]

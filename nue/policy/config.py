@@ -18,6 +18,7 @@ preset          f_u    AT     CBAM   note
 ``fr``          --     no     --     fully reactive: RGB-D + goal -> CNN -> policy
 ``nav_a3c``     --     no     --     same encoder as ``fr`` + LSTM memory
 ``nrns``        --     no     --     NRNS's distance network (``fr``'s encoder + offset); acts through a graph
+``vgm``         --     no     --     Visual Graph Memory (Kwon et al. 2021): graph of view embeddings + LSTM
 ==============  =====  =====  =====  ==========================================
 
 The five ``abl_*`` rows are ``nue`` with components switched off, so they also feed the goal to f_p:
@@ -34,7 +35,12 @@ from typing import Any
 from nue.errors import ConfigError
 from nue.sim.task import TaskConfig
 
-MODEL_KINDS = ("nue", "fr", "nav_a3c", "nrns")
+MODEL_KINDS = ("nue", "fr", "nav_a3c", "nrns", "vgm")
+
+VGM_FIELDS = ("embed_dim", "embed_channels", "embed_grid", "graph_nodes", "graph_threshold", "memory_dim", "gcn_layers",
+              "attention_heads", "embed_steps", "embed_batch", "embed_temperature", "embed_window", "embed_lr")
+"""Fields of kind ``vgm`` only; :meth:`ModelConfig.to_dict` writes them for that kind alone, so the configs of the
+other models keep their exact dict."""
 
 
 @dataclass(frozen=True)
@@ -44,8 +50,9 @@ class ModelConfig:
     name: str = "nue"
     """Preset name, recorded in checkpoints and result tables."""
     kind: str = "nue"
-    """Model family: ``nue`` (NeRF-memory policy), ``fr`` (fully reactive), ``nav_a3c`` (CNN + LSTM) or ``nrns`` (the
-    distance network of NRNS's graph agent, :mod:`nue.policy.nrns_agent`; trained by :mod:`nue.train.nrns_train`)."""
+    """Model family: ``nue`` (NeRF-memory policy), ``fr`` (fully reactive), ``nav_a3c`` (CNN + LSTM), ``nrns`` (the
+    distance network of NRNS's graph agent, :mod:`nue.policy.nrns_agent`; trained by :mod:`nue.train.nrns_train`) or
+    ``vgm`` (visual graph memory, :mod:`nue.policy.vgm_model`)."""
     use_uncertainty: bool = True
     """NUE only: include the exploration branch f_u on the uncertainty map I_u."""
     use_aux: bool = True
@@ -103,7 +110,7 @@ class ModelConfig:
     aux_hidden: int = 64
     """Hidden width of the 2-layer auxiliary angle head."""
     lstm_dim: int = 256
-    """Nav-A3C only: LSTM hidden size."""
+    """Nav-A3C and VGM: LSTM hidden size."""
     panorama_dim: int = 0
     """NUE only: length of the vector f_pano = MLP(log1p(panorama / uncertainty_scale)) of the memory's I_u panorama
     (``MemoryMaps.panorama``, memory presets with ``panorama_headings``), joined to f_cat1 (0 = no panorama)."""
@@ -122,6 +129,37 @@ class ModelConfig:
     to the exploitation head's input (0 = none). Needs the goal at frame size (``goal_in_perception``)."""
     negative_slope: float = 0.01
     """Slope of every LeakyReLU."""
+
+    # --- VGM only (kind ``vgm``; see :mod:`nue.policy.vgm_model` and docs/vgm.md) ---------------------------------
+    embed_dim: int = 128
+    """VGM: length of the L2-normalised view embedding (node features, localisation, goal); VGM's is 512."""
+    embed_channels: tuple[int, ...] = (16, 32, 32)
+    """VGM: residual-block channels of the embedding network (RGB in; trained contrastively, then frozen)."""
+    embed_grid: tuple[int, int] = (3, 4)
+    """VGM: (rows, cols) grid the embedding network pools to before its MLP."""
+    graph_nodes: int = 100
+    """VGM: node capacity of the graph (VGM's memory size); when full, a view below the threshold is localised to its
+    most similar node instead of adding one."""
+    graph_threshold: float = 0.75
+    """VGM: a view whose embedding has cosine similarity below this to every node becomes a new node (VGM: 0.75);
+    above 1, every view becomes a node (until the graph is full)."""
+    memory_dim: int = 128
+    """VGM: width of the graph convolution and of the attention read-outs."""
+    gcn_layers: int = 2
+    """VGM: graph-convolution layers over the goal-fused node features (VGM: 3)."""
+    attention_heads: int = 4
+    """VGM: heads of each attention read-out (VGM: 4); must divide ``memory_dim``."""
+    embed_steps: int = 300
+    """VGM: optimiser steps of the contrastive pre-training of the embedding network at the start of ``nue train``
+    (no labels; 0 = none, the embedding stays at its random initialisation)."""
+    embed_batch: int = 64
+    """VGM: anchor frames per contrastive step (each with one positive; 2 x this many views)."""
+    embed_temperature: float = 0.1
+    """VGM: temperature of the InfoNCE loss."""
+    embed_window: int = 3
+    """VGM: a frame's positive is an augmented frame at most this many steps away in the same demonstration."""
+    embed_lr: float = 1e-3
+    """VGM: AdamW learning rate of the contrastive pre-training."""
 
     def __post_init__(self) -> None:
         where = f"model config {self.name!r}"
@@ -153,6 +191,18 @@ class ModelConfig:
             raise ConfigError(where, f"goal_head applies to kind 'nue' only, not {self.kind!r}")
         if self.max_depth <= 0 or self.uncertainty_scale <= 0:
             raise ConfigError(where, "max_depth and uncertainty_scale must be positive")
+        if self.kind == "vgm":
+            if min(self.embed_dim, self.graph_nodes, self.memory_dim, self.gcn_layers, self.attention_heads,
+                   self.embed_batch, self.embed_window, *self.embed_grid) < 1 or not self.embed_channels:
+                raise ConfigError(where, "VGM sizes (embed_dim, graph_nodes, memory_dim, gcn_layers, attention_heads, "
+                                         "embed_batch, embed_window, embed_grid) must be positive")
+            if self.embed_dim % 2:
+                raise ConfigError(where, f"embed_dim must be even (its time encoding), got {self.embed_dim}")
+            if self.memory_dim % self.attention_heads:
+                raise ConfigError(where, f"attention_heads {self.attention_heads} must divide memory_dim {self.memory_dim}")
+            if not -1.0 <= self.graph_threshold or self.embed_temperature <= 0 or self.embed_steps < 0:
+                raise ConfigError(where, "graph_threshold must be >= -1, embed_temperature positive and "
+                                         "embed_steps >= 0")
 
     # --- what the model reads -------------------------------------------------------------------
     @property
@@ -193,8 +243,13 @@ class ModelConfig:
 
     @property
     def recurrent(self) -> bool:
-        """The model carries a state across steps (Nav-A3C, NUE with a GRU)."""
-        return self.kind == "nav_a3c" or self.gru_dim > 0
+        """The model carries a state across steps (Nav-A3C, VGM, NUE with a GRU)."""
+        return self.kind in ("nav_a3c", "vgm") or self.gru_dim > 0
+
+    @property
+    def pretrains_embedding(self) -> bool:
+        """``nue train`` first trains the model's embedding network contrastively (VGM with ``embed_steps > 0``)."""
+        return self.kind == "vgm" and self.embed_steps > 0
 
     # --- derived configs and serialisation ------------------------------------------------------
     def for_task(self, task: TaskConfig) -> "ModelConfig":
@@ -207,7 +262,8 @@ class ModelConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-data form for checkpoints and JSON (tuples become lists). ``gru_dim``, the panorama's fields,
-        ``goal_head`` and ``goal_match`` are written only when set, so configs from before they existed keep their exact dict."""
+        ``goal_head`` and ``goal_match`` are written only when set, and :data:`VGM_FIELDS` only for kind ``vgm``, so
+        configs from before they existed keep their exact dict."""
         d = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
         if not d["gru_dim"]:
             del d["gru_dim"]
@@ -217,6 +273,9 @@ class ModelConfig:
             del d["goal_head"]
         if not d["goal_match"]:
             del d["goal_match"]
+        if self.kind != "vgm":
+            for k in VGM_FIELDS:
+                del d[k]
         return d
 
     @classmethod
@@ -252,6 +311,8 @@ MODEL_PRESETS: dict[str, ModelConfig] = {
                         goal_in_perception=False),
     "nrns": _NUE.replace(name="nrns", kind="nrns", use_uncertainty=False, use_aux=False, use_cbam=False,
                          goal_in_perception=False),
+    "vgm": _NUE.replace(name="vgm", kind="vgm", use_uncertainty=False, use_aux=False, use_cbam=False,
+                        goal_in_perception=False),
 }
 """Named model configs. The five ``abl_*`` rows and ``nue`` are paper Table I's ablation block."""
 

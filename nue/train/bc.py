@@ -49,7 +49,8 @@ class TrainConfig:
     out: str = "runs/nue"
     """Run folder: checkpoints and TensorBoard logs."""
     model: str = "nue"
-    """Model preset (``nue``, an ablation, ``fr``, ``nav_a3c``, ``nrns``)."""
+    """Model preset (``nue``, an ablation, ``fr``, ``nav_a3c``, ``nrns``, ``vgm``). ``vgm`` first pre-trains its
+    embedding network contrastively on the training frames (``nue.train.contrastive``; the preset's ``embed_steps``)."""
     steps: int = 3000
     """Optimiser steps."""
     batch_size: int = 64
@@ -338,6 +339,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
         from torch.utils.tensorboard import SummaryWriter
 
         writer = SummaryWriter(str(out_dir / "tb"))
+    if step == 0 and not cfg.init_from and model_cfg.pretrains_embedding:
+        _pretrain_embedding(model, data, model_cfg, cfg.seed, device, writer, progress and rank == 0)
 
     def checkpoint(name: str, full: bool, metrics: dict | None = None) -> Path:
         payload = {**meta, "model_state": model.state_dict(), "step": step, "best": best, "elapsed_s": elapsed,
@@ -424,6 +427,24 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
     if world > 1:
         torch.distributed.barrier()
     return TrainResult(out_dir / "best.pt", out_dir / "last.pt", step, step - first_step, elapsed)
+
+
+def _pretrain_embedding(model, data: DemoSet, model_cfg, seed: int, device, writer, progress: bool) -> None:
+    """VGM: contrastive pre-training of the embedding network on the training frames (no labels), before imitation;
+    not repeated on a resume or from ``init_from`` (the weights hold it). Loss per step under ``losses/embed_nce``."""
+    from nue.train.contrastive import demo_pairs, pretrain_embedding
+
+    c = model_cfg
+    bar = tqdm(total=c.embed_steps, desc=f"embed {c.name}", disable=not progress)
+
+    def tick(i: int, loss: float) -> None:
+        bar.update(1)
+        if writer is not None:
+            writer.add_scalar("losses/embed_nce", loss, i)
+
+    pretrain_embedding(model.embed, demo_pairs(data, c, c.embed_window, device), c.embed_steps, c.embed_batch,
+                       c.embed_temperature, c.embed_lr, seed, tick)
+    bar.close()
 
 
 class SequenceForward(torch.nn.Module):
