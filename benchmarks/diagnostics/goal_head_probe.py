@@ -118,11 +118,14 @@ def main() -> None:
     with torch.no_grad():
         for i in range(0, len(idx), 256):
             b = held.batch(ep_of[i:i + 256], st_of[i:i + 256], cfg)
-            f = features(model, b.inp, args.features)
-            out = head(f)
+            full = model(b.inp)
+            if trained:  # the model's own head (with its inputs, e.g. f_match)
+                out = torch.stack([full.goal_view, full.goal_log_distance], dim=1)
+            else:
+                out = head(features(model, b.inp, args.features))
             probs.append(torch.sigmoid(out[:, 0]).numpy())
             logds.append(out[:, 1].numpy())
-            angles.append(model(b.inp).aux_angle.numpy())
+            angles.append(full.aux_angle.numpy())
             labels.append(b.goal_in_view.numpy())
             dists.append(b.goal_distance.numpy())
             true_angles.append(b.goal_angle.numpy())

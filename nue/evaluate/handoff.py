@@ -79,7 +79,7 @@ class Handoff:
         return cls(**{k: d[k] for k in cls.__dataclass_fields__})
 
 
-def handoff(geodesic: Sequence[float], first_seen_step: int | None, success: bool,
+def handoff(geodesic: Sequence[float] | np.ndarray, first_seen_step: int | None, success: bool,
             config: HandoffConfig = HandoffConfig()) -> Handoff:
     """The :class:`Handoff` of an episode from its per-pose geodesic distances to the goal ``(T + 1,)`` metres
     (``inf`` where unknown), its first in-view step and whether it succeeded.
