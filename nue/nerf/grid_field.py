@@ -281,17 +281,9 @@ class RowAdam:
         self._stamp.index_copy_(0, rows, self._arange[: rows.numel()])
         return rows, self._stamp.index_select(0, idx)
 
-    @torch.no_grad()
-    def step(self) -> None:
-        g = self.table.grad
-        if g is None:
-            return
-        self.steps += 1
-        if g.is_sparse:
-            idx, vals = g._indices()[0], g._values()
-        else:
-            idx = torch.nonzero(g.abs().sum(dim=1)).squeeze(1)
-            vals = g[idx]
+    def _update_moments(self, idx: torch.Tensor, vals: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Adam's moment update at the rows an uncoalesced row gradient ``(idx (K,), vals (K, C))`` touches; returns
+        ``(rows (U,), m (U, C), v (U, C))``, the distinct rows and their new moments (also written back)."""
         rows, inverse = self._unique_rows(idx)
         # duplicates summed in the gradient's order (index_put_'s accumulate is index_add_'s sum, op for op, and
         # on CPU about twice as fast for rows this narrow)
@@ -303,6 +295,21 @@ class RowAdam:
         m.mul_(b1).add_(grad, alpha=1 - b1)
         v.mul_(b2).addcmul_(grad, grad, value=1 - b2)
         self._moments.index_copy_(0, rows, moments)
+        return rows, m, v
+
+    @torch.no_grad()
+    def step(self) -> None:
+        g = self.table.grad
+        if g is None:
+            return
+        self.steps += 1
+        if g.is_sparse:
+            idx, vals = g._indices()[0], g._values()
+        else:
+            idx = torch.nonzero(g.abs().sum(dim=1)).squeeze(1)
+            vals = g[idx]
+        rows, m, v = self._update_moments(idx, vals)
+        b1, b2 = self.betas
         step_size = self.lr * math.sqrt(1 - b2**self.steps) / (1 - b1**self.steps)
         # table - step m / (sqrt(v) + eps), as an add of the negated step; the rows are distinct, so a gather,
         # an add and a scatter give index_add_'s result

@@ -44,6 +44,17 @@ from nue.nerf.rendering import compositing_weights, render_depth, render_feature
 from nue.sim.task import CameraConfig
 
 
+def rgb_pixels(rgb, camera, device) -> torch.Tensor:
+    """An (H, W, 3) frame (uint8, or float in [0, 1]) of ``camera``'s size as (H * W, 3) uint8 on ``device``;
+    :class:`MemoryInputError` for another shape."""
+    x = rgb if isinstance(rgb, torch.Tensor) else torch.as_tensor(np.asarray(rgb))
+    if tuple(x.shape) != (camera.height, camera.width, 3):
+        raise MemoryInputError("rgb", f"expected ({camera.height}, {camera.width}, 3), got {tuple(x.shape)}")
+    if x.dtype != torch.uint8:
+        x = (x.float().clamp(0, 1) * 255.0).round().to(torch.uint8)
+    return x.to(device).reshape(-1, 3)
+
+
 @dataclass
 class MemoryMaps:
     """What the memory shows the policy for one pose; torch tensors on the memory's device."""
@@ -164,12 +175,7 @@ class OnlineNeRF:
 
     # ----------------------------------------------------------------- replay
     def _check_rgb(self, rgb) -> torch.Tensor:
-        x = rgb if isinstance(rgb, torch.Tensor) else torch.as_tensor(np.asarray(rgb))
-        if tuple(x.shape) != (self.camera.height, self.camera.width, 3):
-            raise MemoryInputError("rgb", f"expected ({self.camera.height}, {self.camera.width}, 3), got {tuple(x.shape)}")
-        if x.dtype != torch.uint8:
-            x = (x.float().clamp(0, 1) * 255.0).round().to(torch.uint8)
-        return x.to(self.device).reshape(-1, 3)
+        return rgb_pixels(rgb, self.camera, self.device)
 
     def observe(self, rgb, depth, pose, floor_z: float = 0.0) -> None:
         """Add a frame to the replay (the oldest is dropped beyond ``replay_size``). Pixels with invalid

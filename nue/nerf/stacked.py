@@ -36,7 +36,7 @@ from nue.nerf.config import MemoryConfig, get_memory
 from nue.nerf.field import FieldOutputs
 from nue.nerf.grid_field import GridField, RowAdam, _TrilinearRead
 from nue.nerf.loss import uncertainty_nll
-from nue.nerf.online import MemoryMaps
+from nue.nerf.online import MemoryMaps, rgb_pixels
 from nue.nerf.rays import (
     EpisodeFrame,
     MemoryInputError,
@@ -92,15 +92,8 @@ class _SlotRowAdam(RowAdam):
             return
         self.slot_steps[slots] += 1
         idx, vals = g._indices()[0], g._values()
-        rows, inverse = self._unique_rows(idx)
-        grad = torch.zeros(rows.numel(), vals.shape[1], dtype=vals.dtype, device=vals.device)
-        grad.index_put_((inverse,), vals, accumulate=True)
+        rows, m, v = self._update_moments(idx, vals)
         b1, b2 = self.betas
-        moments = self._moments.index_select(0, rows)
-        m, v = moments[:, 0], moments[:, 1]
-        m.mul_(b1).add_(grad, alpha=1 - b1)
-        v.mul_(b2).addcmul_(grad, grad, value=1 - b2)
-        self._moments.index_copy_(0, rows, moments)
         s = np.maximum(self.slot_steps, 1).astype(np.float64)
         per_slot = -self.lr * np.sqrt(1 - b2**s) / (1 - b1**s)  # as RowAdam's float step size, per slot
         neg_step = torch.as_tensor(per_slot, dtype=vals.dtype, device=vals.device)[rows // self.rows_per_slot]
@@ -353,12 +346,7 @@ class StackedMemory:
 
     # ----------------------------------------------------------------- replay
     def _check_rgb(self, rgb) -> torch.Tensor:
-        x = rgb if isinstance(rgb, torch.Tensor) else torch.as_tensor(np.asarray(rgb))
-        if tuple(x.shape) != (self.camera.height, self.camera.width, 3):
-            raise MemoryInputError("rgb", f"expected ({self.camera.height}, {self.camera.width}, 3), got {tuple(x.shape)}")
-        if x.dtype != torch.uint8:
-            x = (x.float().clamp(0, 1) * 255.0).round().to(torch.uint8)
-        return x.to(self.device).reshape(-1, 3)
+        return rgb_pixels(rgb, self.camera, self.device)
 
     def observe(self, i: int, rgb, depth, pose, floor_z: float = 0.0) -> None:
         """Add a frame to slot ``i``'s replay, as ``OnlineNeRF.observe``."""
