@@ -22,7 +22,6 @@ from typing import Callable
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from tqdm import tqdm
 
 from nue.errors import CheckpointError, ConfigError, DataError
@@ -30,10 +29,11 @@ from nue.jobs import fail_point
 from nue.output_lock import hold_output
 from nue.policy import build_model
 from nue.policy.accuracy import held_out_accuracy
-from nue.policy.base import PolicyOutput, angle_l1_loss
+from nue.policy.base import PolicyOutput
 from nue.policy.checkpoint import PolicyHeader, load_checkpoint, policy_meta, resume_mismatches, save_checkpoint
 from nue.policy.config import get_model_config
 from nue.sim.task import get_task
+from nue.train.losses import bc_loss, class_weights, goal_head_loss, in_view_weight  # noqa: F401  (re-exported)
 from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler, data_roots, swap_maps
 from nue.train.hardware import check_compile, resolve_precision
 
@@ -180,48 +180,6 @@ def lr_factor(step: int, cfg: TrainConfig, elapsed_s: float = 0.0) -> float:
     if cfg.time_budget_s > 0:
         p = max(p, min(1.0, elapsed_s / cfg.time_budget_s))
     return cfg.final_lr_ratio + (1 - cfg.final_lr_ratio) * 0.5 * (1 + math.cos(math.pi * p))
-
-
-def class_weights(counts: np.ndarray, power: float) -> torch.Tensor:
-    """(n / n_c)^power, normalised to mean 1 over the classes present."""
-    counts = np.maximum(counts.astype(np.float64), 1.0)
-    w = (counts.sum() / counts) ** power
-    return torch.as_tensor(w / w.mean(), dtype=torch.float32)
-
-
-def bc_loss(out, batch, weights: torch.Tensor, aux_weight: float, goal_weight: float = 0.0, goal_pos_weight: float = 1.0):
-    """(total, cross-entropy, angle L1 or None) of a forward_sequence output against a batch; the total includes
-    ``goal_weight`` x :func:`goal_head_loss` when the model has the exploitation head."""
-    logits = out.logits.reshape(-1, out.logits.shape[-1])
-    ce = F.cross_entropy(logits, batch.action.reshape(-1), weight=weights.to(logits.device))
-    total = ce
-    if out.goal_view is not None and batch.goal_in_view is not None:
-        total = total + goal_weight * goal_head_loss(out, batch, goal_pos_weight)
-    if out.aux_angle is None:
-        return total, ce, None
-    aux = angle_l1_loss(out.aux_angle.reshape(-1), batch.goal_angle.reshape(-1))
-    return total + aux_weight * aux, ce, aux
-
-
-def goal_head_loss(out, batch, pos_weight: float = 1.0) -> torch.Tensor:
-    """The exploitation head's loss: ``BCE(goal_view, in_view) + mean over in-view steps |log_d - log(d)|`` (the
-    in-view terms of the BCE weighted ``pos_weight``; the distance term is 0 for a batch without an in-view step;
-    distances are floored at 0.1 m before the log)."""
-    view = batch.goal_in_view.reshape(-1).to(out.goal_view.dtype)
-    bce = F.binary_cross_entropy_with_logits(out.goal_view.reshape(-1), view,
-                                             pos_weight=torch.tensor(float(pos_weight), device=view.device))
-    mask = view > 0.5
-    if not bool(mask.any()):
-        return bce
-    target = torch.log(batch.goal_distance.reshape(-1)[mask].clamp_min(0.1))
-    return bce + (out.goal_log_distance.reshape(-1)[mask] - target).abs().mean()
-
-
-def in_view_weight(data) -> float:
-    """Steps without the goal in view per step with it, over a collection's episodes (1 without any either way)."""
-    n = sum(len(e["goal_in_view"]) for e in data.episodes)
-    pos = sum(int(np.asarray(e["goal_in_view"]).sum()) for e in data.episodes)
-    return (n - pos) / pos if 0 < pos < n else 1.0
 
 
 @dataclass
