@@ -97,9 +97,14 @@ class _Heads:
 
 
 def test_learned_locator_turns_the_heads_into_a_world_position():
-    loc = LearnedGoalLocator(_Heads(0.8, 2.0, math.pi / 2), LearnedLocatorConfig(weight=10.0))
+    loc = LearnedGoalLocator(_Heads(0.8, 2.0, math.pi / 2), LearnedLocatorConfig(weight=10.0, bearing="aux"))
     m = loc.estimate(None, None, np.array([1.0, 1.0, math.pi / 2]))  # facing +y, goal 90 deg to the left: -x
     assert m is not None and np.allclose(m.xy, [-1.0, 1.0]) and m.inliers == 8 and m.distance == 2.0
+    ahead = LearnedGoalLocator(_Heads(0.8, 2.0, math.pi / 2))  # default: straight ahead, the angle head ignored
+    m = ahead.estimate(None, None, np.array([1.0, 1.0, math.pi / 2]))
+    assert m is not None and np.allclose(m.xy, [1.0, 3.0])
+    with pytest.raises(ValueError, match="bearing"):
+        LearnedLocatorConfig(bearing="map")
     assert LearnedGoalLocator(_Heads(0.3, 2.0, 0.0)).estimate(None, None, np.zeros(3)) is None
     assert LearnedGoalLocator(_Heads(0.9, 9.0, 0.0)).estimate(None, None, np.zeros(3)) is None
     with pytest.raises(ValueError, match="goal_head"):

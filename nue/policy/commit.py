@@ -6,7 +6,9 @@ three outputs into a goal measurement in world coordinates,
 
     xy_goal = xy + d * (cos(yaw + a), sin(yaw + a))      when p_view >= min_view_probability,
 
-weighted ``weight * p_view``, for the last-mile wrapper (:class:`nue.policy.last_mile.LastMileAgent` with
+weighted ``weight * p_view``, where the bearing ``a`` is 0 (``bearing="ahead"``, the default: the goal straight ahead)
+or the auxiliary head's goal angle (``bearing="aux"``); docs/exploration.md says why straight ahead is the default.
+The measurements go to the last-mile wrapper (:class:`nue.policy.last_mile.LastMileAgent` with
 ``locator="learned"``), which keeps the running estimate, commits to it once consistent measurements add up, and
 drives there on the robot's own depth-built map. It replaces SLING's keypoint matching with what the policy
 learned; the controller, the estimate's bookkeeping and the hand-back are the same. No scene or true goal is read.
@@ -26,6 +28,10 @@ COMMIT_PREFIX = "commit+"
 in the last-mile agent with the learned locator."""
 
 
+BEARINGS = ("ahead", "aux")
+"""The learned locator's bearing sources (:attr:`LearnedLocatorConfig.bearing`)."""
+
+
 @dataclass(frozen=True)
 class LearnedLocatorConfig:
     """When one step's head outputs make a measurement, and its weight."""
@@ -37,6 +43,12 @@ class LearnedLocatorConfig:
     ``accept_inliers`` = 20, about two confident steps that agree commit the robot."""
     max_distance: float = 4.0
     """Predicted distances beyond this (metres) make no measurement (the head is trained on in-view steps, <= 3 m)."""
+    bearing: str = "ahead"
+    """Where the goal is relative to the heading: ``ahead`` (straight ahead) or ``aux`` (the auxiliary angle head)."""
+
+    def __post_init__(self) -> None:
+        if self.bearing not in BEARINGS:
+            raise ValueError(f"unknown bearing {self.bearing!r}; known: {', '.join(BEARINGS)}")
 
 
 class LearnedGoalLocator:
@@ -59,6 +71,8 @@ class LearnedGoalLocator:
         cfg, pol = self.config, self.policy
         self.report = rep = MatchReport()
         p, d, a = pol.last_goal_view, pol.last_goal_distance, pol.last_aux
+        if cfg.bearing == "ahead":
+            a = 0.0
         if p is None or d is None or a is None:
             rep.reason = "no_head"
             return None
