@@ -10,7 +10,8 @@ shipped ``checkpoints/*.pt`` (``checkpoints/README.md``): ``v5`` with a budget o
 on any machine. ``v7`` is ``v6`` with 3 training seeds for NUE, the no-f_u and all-off ablations and FR
 (``Recipe.train_seeds``: a row of Table I is then the seeds' runs). ``v5`` trains each model for 50 minutes on one
 core (its models are ``results/v5/checkpoints/``), ``v3`` for 34 minutes with three snapshots competing in the
-selection; ``quick`` is tiny everything, for CI (with 2 training seeds of NUE, so CI runs the seeds' path end to end).
+selection; ``v8`` is ``v7`` with the SLING rows (NUE, FR and Nav-A3C wrapped in the last-mile module); ``quick`` is tiny
+everything, for CI (with 2 training seeds of NUE and its SLING row, so CI runs those paths end to end).
 """
 
 from __future__ import annotations
@@ -157,6 +158,9 @@ class Recipe:
     """Reference rows run on every set: ``expert`` (geodesic), ``expert-explore``."""
     swap_maps: tuple[str, ...] = ("nue",)
     """Models also run with another episode's maps (the swapped-maps control) on every evaluation set."""
+    last_mile: tuple[str, ...] = ()
+    """Models also run wrapped in SLING's last-mile module (``sling+<run>`` rows, :mod:`nue.policy.last_mile`) on
+    every evaluation set, every seed of each."""
 
     def __post_init__(self) -> None:
         for m in self.models:
@@ -169,6 +173,8 @@ class Recipe:
             raise ConfigError("recipe", "needs a training budget: train_minutes, train_samples or steps")
         if set(self.swap_maps) - set(self.models):
             raise ConfigError("recipe", "swap_maps names a model the recipe does not train")
+        if set(self.last_mile) - set(self.models):
+            raise ConfigError("recipe", "last_mile names a model the recipe does not train")
         named = [m for m, _ in self.train_seeds]
         for m in named:
             get_model_config(m)
@@ -231,6 +237,7 @@ class Recipe:
         dagger = f", then {self.dagger_rounds} DAgger round(s) (beta {self.dagger_beta})" if self.dagger_rounds else ""
         seeds = (f"; training seeds: {', '.join(f'{m} x{n}' for m, n in self.train_seeds)} "
                  f"({len(self.training_runs())} runs; the others once)" if self.train_seeds else "")
+        last_mile = f"; SLING last mile: {', '.join(self.last_mile)}" if self.last_mile else ""
         select = (f"best.pt by closed-loop selection among the last {self.select_candidates} snapshots on episodes/select"
                   if self.select == "closed_loop" else "best.pt by held-out action accuracy")
         return (f"{self.name}: demonstrations from the {self.expert} expert with DART noise {self.noise:g}, "
@@ -238,14 +245,17 @@ class Recipe:
                 f"(memory preset {self.memory}); {len(self.models)} models ({', '.join(self.models)}) trained for "
                 f"{budget}, batch {self.batch_size} samples, {self.precision}, map dropout {self.map_dropout:g} for the "
                 f"models that read maps{dagger}{seeds}; {select}; evaluated on {', '.join(self.eval_sets)} "
-                f"(+ {', '.join(self.experts) or 'no experts'}; swapped maps: {', '.join(self.swap_maps) or 'none'})")
+                f"(+ {', '.join(self.experts) or 'no experts'}; swapped maps: {', '.join(self.swap_maps) or 'none'}"
+                f"{last_mile})")
 
     def to_dict(self) -> dict:
         """Plain JSON data (stored in the run folder; a resumed run must match it exactly). ``train_split`` only when it
-        is not ``train``, so runs started before it existed resume."""
+        is not ``train`` and ``last_mile`` only when it names a model, so runs started before they existed resume."""
         d = _jsonable(dataclasses.asdict(self))
         if d["train_split"] == "train":
             del d["train_split"]
+        if not d["last_mile"]:
+            del d["last_mile"]
         return d
 
     def replace(self, **changes) -> "Recipe":
@@ -276,20 +286,26 @@ f_u; ``abl_fu`` is the other way round, f_u alone), the all-off ablation (``abl_
 comparisons between them pool seeds x episodes (issue 37, item 6); the other models train once. Only the training
 seed differs between a model's seeds."""
 
+V8 = V7.replace(name="v8", last_mile=("nue", "fr", "nav_a3c"))
+"""v7 with the SLING rows of Table I (issue 40): NUE (every seed), FR (every seed) and Nav-A3C also run wrapped in the
+last-mile module on every evaluation set."""
+
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
     "v7": V7,
+    "v8": V8,
     "v5": V5,
     "v3": V3,
     "quick": V3.replace(
         name="quick", expert="geodesic", episodes_per_bin=1, heldout_per_bin=0, train_houses=(0,), train_minutes=0.0,
         steps=(("nue", StepPlan(2, 2)), ("fr", StepPlan(2, 2)), ("nav_a3c", StepPlan(2, 2))), batch_size=4,
         seq_len=2, warmup=1, precision="fp32", select="accuracy", eval_houses=(0,), eval_max_episodes=1,
-        eval_max_steps=5, experts=("expert",), train_seeds=(("nue", 2),)),
+        eval_max_steps=5, experts=("expert",), train_seeds=(("nue", 2),), last_mile=("nue",)),
 }
 """Named recipes: ``v6`` (the default and the shipped checkpoints': v5 with 256k samples per model instead of 50
-minutes), ``v7`` (v6 with 3 training seeds for NUE, abl_at_cbam, abl_none and FR), ``v5``, ``v3``
-(docs/history/checkpoints.md) and ``quick`` (CI; 2 training seeds of NUE)."""
+minutes), ``v7`` (v6 with 3 training seeds for NUE, abl_at_cbam, abl_none and FR), ``v8`` (v7 with the SLING rows of
+NUE, FR and Nav-A3C), ``v5``, ``v3`` (docs/history/checkpoints.md) and ``quick`` (CI; 2 training seeds of NUE, and its
+SLING row)."""
 
 
 def get_recipe(name: str) -> Recipe:

@@ -40,11 +40,13 @@ class CostModel:
     """Closed-loop selection, seconds per episode (400-step limit; the v6 run: 2 x 21 episodes in 7.2-8.6 min per
     NUE-family model, 73 s FR, 79 s Nav-A3C)."""
     eval_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 13.3), ("fr", 3.4), ("nav_a3c", 3.9),
-                                                         ("expert", 0.2), ("expert-explore", 1.7), ("swap", 4.3))
+                                                         ("expert", 0.2), ("expert-explore", 1.7), ("swap", 4.3),
+                                                         ("sling", 2.5))
     """Evaluation, seconds per episode per worker, two workers: the mean ``wall_time`` of the v6 run's val252
     records (the six NUE-family models 12.5-14.1 s, 325-381 steps an episode at 36-40 ms a step). The swapped-maps
     control replays maps recorded along the expert's run of another episode, so its agent neither renders nor
-    trains a memory."""
+    trains a memory. ``sling`` is what SLING's last-mile wrapper adds to its model's episode (SIFT matching every 4th
+    step at ~22 ms, the depth map every 2nd at ~2 ms: ~7 ms a step, ~300 steps)."""
     train_overhead_s: float = 10.0
     """Per model: loading the demonstrations, building the model, checkpoints, seconds."""
     eval_overhead_s: float = 5.0
@@ -144,6 +146,12 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
             out.append(StageEstimate(f"eval/{name}+swap", (n * swap * dict(cost.eval_s_per_episode)["swap"] * scale
                                                            + swap * cost.eval_overhead_s) / w,
                                      f"{n} episodes x {swap} {'model(s)' if swap == len(recipe.swap_maps) else 'runs'}, swapped maps"))
+        if recipe.last_mile:
+            wrapped = recipe.training_runs(recipe.last_mile)
+            per_ep = sum(_kind_cost(cost.eval_s_per_episode, r.model) + dict(cost.eval_s_per_episode)["sling"]
+                         for r in wrapped)
+            out.append(StageEstimate(f"eval/{name}+sling", (n * per_ep * scale + len(wrapped) * cost.eval_overhead_s) / w,
+                                     f"{n} episodes x {len(wrapped)} runs with SLING's last mile / {w} worker(s)"))
     out.append(StageEstimate("report", cost.report_s, "tables, coverage plot, RESULTS.md"))
     return out
 

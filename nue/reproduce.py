@@ -12,7 +12,8 @@ Stages, in order (each one calls the library function of its command, and each i
                     (:mod:`nue.reproduce_train`)
 ``eval/<set>``      ``nue eval`` of every training run and expert on the set into ``OUT/records/<set>.jsonl`` (a
                     run's records are named after it, so the report pools a model's seeds into one row)
-``eval/<set>+swap`` the swapped-maps control on each set (every seed of the ``swap_maps`` models)
+``eval/<set>+swap`` the swapped-maps control on each set (every seed of the ``swap_maps`` models); then
+                    ``eval/<set>+sling``, the ``last_mile`` models (every seed) wrapped in SLING's last-mile module
 ``report``          ``nue report`` per set (``OUT/report/<set>/``: tables and coverage.png; a set that extends
                     another also reports the smaller one from the same records) and ``OUT/RESULTS.md`` (with each
                     stage's wall-clock in the call that finished it, and an evaluation's summed episode time)
@@ -43,6 +44,7 @@ from nue.evaluate.runner import EvalConfig, episode_files, run_eval
 from nue.jobs import fail_point
 from nue.output_lock import hold_output
 from nue.policy.checkpoint import git_commit
+from nue.policy.last_mile import SLING_PREFIX
 from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, format_duration, format_estimate
 from nue.reproduce_train import TrainJob, collect_config, run_training, train_config, train_model  # noqa: F401
 from nue.scene.generator import SPLITS, ensure_house
@@ -167,6 +169,13 @@ def _lines(path: Path) -> int:
         return sum(1 for line in f if line.strip())
 
 
+_EXTRA_ROWS: dict[str, Callable[[Recipe], tuple[str, ...]]] = {
+    "swap": lambda r: r.swap_maps,
+    "sling": lambda r: r.last_mile,
+}
+"""Evaluation stages after ``eval/<set>``, by suffix: the models (every seed) each runs."""
+
+
 def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, compiled: bool = False) -> list[StageEstimate]:
     """:func:`~nue.recipe.estimate` of what is left of a (resumed) run: stages finished earlier are marked done,
     the training stage counts only the training runs not trained yet, and an evaluation stage is scaled by the share
@@ -184,9 +193,10 @@ def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, co
             out.append(replace(s, detail=f"{s.detail}; {len(trained) - len(pending)} trained earlier"))
         elif s.stage.startswith("eval/"):
             name = s.stage.removeprefix("eval/")
-            methods = (len(recipe.training_runs(recipe.swap_maps)) if name.endswith("+swap")
+            extra = _EXTRA_ROWS.get(name.rpartition("+")[2]) if "+" in name else None
+            methods = (len(recipe.training_runs(extra(recipe))) if extra is not None
                        else len(trained) + len(recipe.experts))
-            runs = counts[name.removesuffix("+swap")] * methods
+            runs = counts[name.partition("+")[0]] * methods
             have = min(_lines(folders.records(s.stage)), runs)
             out.append(replace(s, seconds=s.seconds * (1 - have / max(runs, 1)),
                                detail=s.detail + (f"; {have:,} of {runs:,} runs recorded" if have else "")))
@@ -200,8 +210,9 @@ def plan_stages(recipe: Recipe) -> list[str]:
     stages = ["scenes", "collect", *[f"train/{r.name}" for r in recipe.training_runs()]]
     for name in recipe.eval_sets:
         stages.append(f"eval/{name}")
-        if recipe.swap_maps:
-            stages.append(f"eval/{name}+swap")
+        for suffix, models in _EXTRA_ROWS.items():
+            if models(recipe):
+                stages.append(f"eval/{name}+{suffix}")
     return stages + ["report"]
 
 
@@ -288,11 +299,13 @@ def _methods(recipe: Recipe, folders: RunFolders, models) -> list[str]:
 
 def _run_eval(recipe: Recipe, folders: RunFolders, stage: str, workers, ray_address, device, progress) -> dict:
     name = stage.removeprefix("eval/")
-    swap = name.endswith("+swap")
-    set_name = name.removesuffix("+swap")
+    set_name, _, suffix = name.partition("+")
+    swap = suffix == "swap"
     spec = get_episode_set(set_name)
-    methods = _methods(recipe, folders, recipe.swap_maps if swap else recipe.models)
-    if not swap:
+    methods = _methods(recipe, folders, _EXTRA_ROWS[suffix](recipe) if suffix else recipe.models)
+    if suffix == "sling":
+        methods = [f"{SLING_PREFIX}{m}" for m in methods]
+    if not suffix:
         methods += list(recipe.experts)
     cfg = EvalConfig(episodes_dir=str(eval_episodes_dir(recipe, folders, set_name)), scenes_root=str(folders.scenes_root),
                      split=spec.split, task=recipe.task, seed=recipe.seed, device=device, swap_maps=swap,
@@ -312,7 +325,7 @@ def _subset(records, episodes_dir: Path) -> list:
 
 
 def report_tables(recipe: Recipe, folders: RunFolders) -> dict[str, list]:
-    """Records per reported table: every evaluation set with its swapped-maps rows, and each smaller
+    """Records per reported table: every evaluation set with its swapped-maps and SLING rows, and each smaller
     set a set extends, taken from the larger set's records."""
     tables: dict[str, list] = {}
     for name in recipe.eval_sets:
@@ -320,8 +333,9 @@ def report_tables(recipe: Recipe, folders: RunFolders) -> dict[str, list]:
         spec = get_episode_set(name)
         if spec.extends and (folders.episodes_root / spec.extends).is_dir():
             tables[spec.extends] = _subset(recs, folders.episodes_root / spec.extends)
-        if recipe.swap_maps:
-            recs = recs + load_records(folders.records(f"eval/{name}+swap"))
+        for suffix, models in _EXTRA_ROWS.items():
+            if models(recipe):
+                recs = recs + load_records(folders.records(f"eval/{name}+{suffix}"))
         tables[name] = recs
     return tables
 

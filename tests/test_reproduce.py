@@ -71,13 +71,17 @@ def test_quick_run_prints_its_estimate_and_reaches_results(run):
     stages = plan_stages(RECIPES["quick"])
     assert all(RunFolders(out, Path(), Path()).marker(s).is_file() for s in stages)
     records = {name: load_records(out / "records" / f"{name}.jsonl") for name in ("val252", "val_plain", "val252+swap",
-                                                                                "val_plain+swap")}
+                                                                                "val_plain+swap", "val252+sling",
+                                                                                "val_plain+sling")}
     methods = {*TABLE_I_MODELS, "nue@s1", "expert"}  # the quick recipe trains NUE with 2 seeds
     assert {r.method for r in records["val252"]} == methods == {r.method for r in records["val_plain"]}
     assert {r.scene for r in records["val252"]} == {"val_00"} and {r.scene for r in records["val_plain"]} == {"val_plain_00"}
     swapped = {"nue+swap", "nue@s1+swap"}
     assert {r.method for r in records["val252+swap"]} == swapped == {r.method for r in records["val_plain+swap"]}
     assert {r.scene for r in records["val_plain+swap"]} == {"val_plain_00"}
+    wrapped = {"sling+nue", "sling+nue@s1"}  # the quick recipe's SLING row, every seed, on both sets
+    assert {r.method for r in records["val252+sling"]} == wrapped == {r.method for r in records["val_plain+sling"]}
+    assert all(r.extra["last_mile"]["match_calls"] >= 1 for r in records["val252+sling"])
     results = (out / "RESULTS.md").read_text()
     assert "## Table I: ours next to the paper" in results and "nue reproduce --recipe quick" in results
     assert "## Table I on `val`" in results and "## Table I on `val_plain`" in results
@@ -120,7 +124,7 @@ def test_a_recipe_with_dagger_rounds_trains_through_them(run, tmp_path):
     (round 0), then the policy drives the recipe's training episodes with the expert labelling, and round 1
     retrains on both; the stage's best checkpoint is round 1's."""
     out = run[0]
-    recipe = get_recipe("quick").replace(name="quick_dagger", models=("fr",), swap_maps=(), dagger_rounds=1,
+    recipe = get_recipe("quick").replace(name="quick_dagger", models=("fr",), swap_maps=(), last_mile=(), dagger_rounds=1,
                                          dagger_beta=0.5, dagger_steps=2, dagger_episodes_per_bin=1)
     folders = RunFolders(tmp_path / "run", out.parent / "scenes", EPISODES)
     folders.out.mkdir()
@@ -360,6 +364,25 @@ def test_the_estimate_counts_every_seed_s_training_selection_and_evaluation():
     assert c.train_overhead_s == 10.0 and dict(c.samples_per_s)["nue"] == 98.0  # the numbers used above
     code, text = _nue("reproduce", "--recipe", "v7", "--estimate", "--workers", 2, "--out", "/nonexistent/run")
     assert code == 0 and "16 runs (models x seeds)" in text and "18 methods" in text
+
+
+def test_the_sling_rows_are_a_stage_of_their_own_with_their_cost():
+    """v8 = v7 + SLING on NUE (3 seeds), FR (3 seeds) and Nav-A3C: 7 wrapped runs per set, each costing its model's
+    episode plus the wrapper's; a model the recipe does not train is refused; recipes without it keep their dict."""
+    from nue.recipe import CostModel
+
+    v7, v8, c = get_recipe("v7"), get_recipe("v8"), CostModel()
+    assert "last_mile" not in v7.to_dict() and v8.to_dict()["last_mile"] == ["nue", "fr", "nav_a3c"]
+    after_swap = [s for st in plan_stages(v7) for s in ([st, st.replace("+swap", "+sling")] if st.endswith("+swap") else [st])]
+    assert plan_stages(v8) == after_swap and "eval/val_plain+sling" in after_swap
+    by = {s.stage: s for s in estimate(v8, 1)}
+    sling = dict(c.eval_s_per_episode)["sling"]
+    expected = 252 * (3 * (13.3 + sling) + 3 * (3.4 + sling) + (3.9 + sling)) + 7 * 5.0
+    assert by["eval/val252+sling"].seconds == pytest.approx(expected)
+    assert "7 runs with SLING" in by["eval/val_plain+sling"].detail
+    assert "SLING last mile: nue, fr, nav_a3c" in v8.summary() and "SLING" not in v7.summary()
+    with pytest.raises(ConfigError, match="last_mile"):
+        v7.replace(last_mile=("vgm",))
 
 
 def test_a_run_started_before_train_seeds_existed_resumes_and_refuses_seeds(tmp_path):
