@@ -96,7 +96,8 @@ def test_formats_markdown_csv_latex():
 
 def test_paper_table_data():
     p = R.paper_table()
-    assert len(p) == 13 and {m.key for m in R.METHODS} <= set(p)
+    assert len(p) == 13 and {m.key for m in R.METHODS if m.paper_row} <= set(p)
+    assert {m.key for m in R.METHODS if not m.paper_row} == {"sling+fr", "sling+nav_a3c", "sling+nue"}
     assert p["nue"]["total"] == (59.65, 0.385, 2.053)
     assert p["fr"]["total"][1] == 0.012  # the paper's typo, kept as printed
     assert p["abl_fu_at"]["easy"] == (62.23, 0.422, 1.406) and "SLING+OVRL" in p
@@ -425,3 +426,13 @@ def test_results_md_with_seeds_has_the_seed_notes_and_a_single_seed_one_has_none
     assert list(curves) == ["fr", "nue"] and curves["nue"].tolist() == [1.5, 4.0]  # the seeds' runs averaged
     plain = RM.render_results_md(hand_records(), {"command": "nue reproduce --recipe v6"})
     assert "Training seeds" not in plain and "two-level" not in plain
+
+
+def test_sling_rows_are_labelled_and_carry_the_paper_s_sling_totals():
+    from types import SimpleNamespace
+
+    rows = [SimpleNamespace(method="nue"), SimpleNamespace(method="sling+nue@s1")]
+    note = R.sling_notes(rows)
+    assert "SLING+OVRL 56.64% SR, SPL 0.379" in note and "SLING+DDPPO 33.50% SR" in note  # paper_table1.csv's totals
+    assert R.sling_notes(rows[:1]) == ""
+    assert R.method_label("sling+nue@s1") == "SLING + NUE @s1" and R.canonical_method("SLING + FR") == "sling+fr"

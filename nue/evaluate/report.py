@@ -36,6 +36,7 @@ from nue.evaluate.table import (  # noqa: F401  (re-exported)
     DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, method_label, order_methods,
     paper_table, seed_run_name, split_seed,
 )
+from nue.policy.last_mile import SLING_PREFIX
 from nue.sim.record import EpisodeRecord
 
 
@@ -253,9 +254,25 @@ PAIRED_SEED_NOTES = (
 
 def seed_notes(rows: Sequence[TableRow]) -> str:
     """:data:`SEED_NOTES` and the *Training seeds* table (:func:`format_seeds_markdown`) when some row has several
-    seeds, with a blank line before; '' otherwise (a single-seed table is unchanged)."""
+    seeds, with a blank line before; then :func:`sling_notes`; '' when neither applies (such a table is unchanged)."""
     seeds = format_seeds_markdown(rows)
-    return f"\n{SEED_NOTES}\n\nTraining seeds (each run's totals):\n\n{seeds}" if seeds else ""
+    return (f"\n{SEED_NOTES}\n\nTraining seeds (each run's totals):\n\n{seeds}" if seeds else "") + sling_notes(rows)
+
+
+def sling_notes(rows: Sequence[TableRow], paper=None) -> str:
+    """What the *SLING + X* rows are and the paper's SLING rows' totals (they have no counterpart here), with a blank
+    line before, when some row is a ``sling+`` method; else ''."""
+    if not any(split_seed(r.method)[0].startswith(SLING_PREFIX) for r in rows):
+        return ""
+    paper = paper_table() if paper is None else paper
+    theirs = "; ".join(f"{name} {paper[name]['total'][0]:.2f}% SR, SPL {paper[name]['total'][1]:.3f}"
+                       for name in ("SLING+DDPPO", "SLING+OVRL") if name in paper)
+    return ("\n*SLING + X* rows: SLING's last-mile module (SIFT matches between the goal photo and the frame, the goal's "
+            "pose by PnP with the depth, a point-goal controller on the robot's own depth-built map; "
+            "`nue.policy.last_mile`) wrapped around our policy X, on the same episodes with the same per-episode seeds. "
+            "The paper's SLING rows wrap DD-PPO (2.5 billion frames of reinforcement learning) and OVRL (an encoder "
+            "pretrained on other data); neither can be had here (CPU only, nothing downloaded), so they have no row of "
+            f"ours. The paper's totals: {theirs}.\n")
 
 
 def paired_markdown(diffs: Sequence[PairedDiff]) -> str:

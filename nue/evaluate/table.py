@@ -35,8 +35,8 @@ class MethodInfo:
     """Our preset name (``nue.policy.config.MODEL_PRESETS``)."""
     label: str
     """Row label in our tables."""
-    paper_row: str
-    """The row's ``method`` in ``paper_table1.csv``."""
+    paper_row: str | None
+    """The row's ``method`` in ``paper_table1.csv``; None for our rows the paper has no counterpart of."""
 
 
 METHODS: tuple[MethodInfo, ...] = (
@@ -48,10 +48,13 @@ METHODS: tuple[MethodInfo, ...] = (
     MethodInfo("abl_fu_cbam", "f_u=on AT=off CBAM=on", "ablation f_u=on AT=off CBAM=on"),
     MethodInfo("abl_fu_at", "f_u=on AT=on CBAM=off", "ablation f_u=on AT=on CBAM=off"),
     MethodInfo("nue", "NUE (full)", "NUE (full)"),
+    MethodInfo("sling+fr", "SLING + FR", None),
+    MethodInfo("sling+nav_a3c", "SLING + Nav-A3C", None),
+    MethodInfo("sling+nue", "SLING + NUE", None),
 )
 _BY_KEY = {m.key: m for m in METHODS}
 _norm = lambda s: re.sub(r"[^a-z0-9]", "", str(s).lower())  # noqa: E731
-_ALIASES = {_norm(a): m.key for m in METHODS for a in (m.key, m.label, m.paper_row)}
+_ALIASES = {_norm(a): m.key for m in METHODS for a in (m.key, m.label, m.paper_row) if a}
 _ALIASES.update({_norm("ablation " + m.label): m.key for m in METHODS})
 
 
