@@ -221,14 +221,6 @@ class ConfigOptions:
         return ConfigOptions(self.ref, *(dataclasses.replace(o, **changes.get(o.field, {}))
                                          for o in self.opts if o.field not in drop), as_dict=self.as_dict)
 
-    def renamed(self, flags: dict[str, str], *, panel: str, see: str) -> ConfigOptions:
-        """The options of the fields in ``flags`` under the flags given there (old spellings), each listed in
-        ``panel`` with the help "`<see> <its own flag>`." (its current spelling)."""
-        by_field = {o.field: o for o in self.opts}
-        return ConfigOptions(self.ref, *(dataclasses.replace(by_field[f], flag=flag, panel=panel,
-                                                             help=f"`{see} {by_field[f].option}`.")
-                                         for f, flag in flags.items()))
-
     def field(self, name: str) -> ConfigField:
         return config_fields(self.ref)[name]
 

@@ -6,7 +6,7 @@ is added to it, so a region seen for the first time shows as uncertain.
 
 :func:`run_episodes` runs B episodes side by side in lock step (B "slots"): each step renders the maps of
 all running episodes (one call of a slot memory, :class:`nue.nerf.slots.SlotMemory`), asks their agents for
-actions (one batched forward for the agents that have ``act_batch``, the others one by one), updates the
+actions (one batched forward for the agents that are :class:`~nue.policy.protocols.BatchedAgent`, the others one by one), updates the
 memory (one call) and steps the envs in turn; an episode that ends frees its slot for the next job of the
 queue. :func:`run_episode` is its B = 1 case and makes exactly the calls of the plain loop.
 """
@@ -18,22 +18,9 @@ from typing import Any, Callable, Iterable, Iterator, Protocol
 
 import numpy as np
 
+from nue.policy.protocols import Agent, BatchedAgent
 from nue.sim.env import ImageNavEnv
 from nue.sim.record import EpisodeRecord
-
-
-class Agent(Protocol):
-    """Anything that picks actions: the expert, a trained policy, a mix of both.
-
-    An agent may also offer a batched forward for the lock-step loop: ``batch_key()`` (agents whose keys are
-    equal can share one forward) and ``act_batch(agents, obs_list, maps_list, rows, positions) -> list[int]`` (a
-    static method: the actions of ``agents`` for their observations, in one forward of ``rows`` rows, agent k in
-    row ``positions[k]``).
-    """
-
-    def reset(self, env: ImageNavEnv, obs: dict[str, np.ndarray], seed: int) -> None: ...
-
-    def act(self, obs: dict[str, np.ndarray], maps: Any) -> int: ...
 
 
 class Memory(Protocol):
@@ -146,7 +133,7 @@ def lockstep(
     job: per-slot envs, agents, trackers). Jobs start in order, each in the lowest free slot, as soon as a
     slot is free. ``memory``: the slots' memory for jobs with ``slot_memory`` (``memory.slots >= slots``).
 
-    With ``slots > 1`` agents that have ``act_batch`` run in one forward per step and group of equal
+    With ``slots > 1`` agents that are :class:`~nue.policy.protocols.BatchedAgent` run in one forward per step and group of equal
     ``batch_key()``, always of ``slots`` rows (padded), each in the row of its slot: an episode's numbers depend
     on its own inputs, ``slots`` and (on some CPUs, in the last bit) its slot index, never on the contents of
     the other rows. With ``slots == 1`` every agent's ``act`` is called (the plain loop's arithmetic).
@@ -205,8 +192,9 @@ def _act(active: list[_Running], maps: list[Any], slots: int) -> list[int]:
     if slots > 1:
         groups: dict[Any, list[int]] = {}
         for k, r in enumerate(active):
-            if hasattr(r.job.agent, "act_batch"):
-                groups.setdefault((type(r.job.agent), r.job.agent.batch_key()), []).append(k)  # type: ignore[attr-defined]
+            agent = r.job.agent
+            if isinstance(agent, BatchedAgent):
+                groups.setdefault((type(agent), agent.batch_key()), []).append(k)
         for (kind, _), ks in groups.items():
             out = kind.act_batch([active[k].job.agent for k in ks], [active[k].obs for k in ks], [maps[k] for k in ks],
                                  rows=slots, positions=[active[k].slot for k in ks])

@@ -128,11 +128,11 @@ def test_a_recipe_with_dagger_rounds_trains_through_them(run, tmp_path):
     done = {}
     run_training(recipe, folders, ["train/fr"], workers=1, ray_address=None, device="cpu", progress=False,
                   finish=lambda stage, seconds, result: done.update({stage: result}))
-    rounds = done["train/fr"]["rounds"]
-    assert [r["round"] for r in rounds] == [0, 1] and rounds[1]["beta"] == 0.5
-    assert rounds[1]["collected"]["episodes"] == 3  # 1 house x 3 bins x the first episode
-    assert Path(done["train/fr"]["best"]) == Path(rounds[1]["best"]) and "round_1" in rounds[1]["best"]
-    assert Path(rounds[1]["best"]).is_file() and rounds[1]["data"].endswith("data_r1")
+    rounds = done["train/fr"].rounds
+    assert [r.round for r in rounds] == [0, 1] and rounds[1].beta == 0.5
+    assert rounds[1].collected.episodes == 3  # 1 house x 3 bins x the first episode
+    assert Path(done["train/fr"].best) == rounds[1].best and "round_1" in str(rounds[1].best)
+    assert rounds[1].best.is_file() and rounds[1].data.endswith("data_r1")
 
 
 def test_a_rerun_with_another_recipe_is_refused(run):

@@ -24,6 +24,7 @@ from nue.policy.agent import ExpertAgent, RandomAgent
 from nue.policy.checkpoint import load_agent
 from nue.policy.last_mile import LastMileAgent
 from nue.policy.nrns_agent import NRNSAgent
+from nue.policy.protocols import Twinnable
 from nue.rollout import EpisodeJob, lockstep, run_episode
 from nue.sim.env import ImageNavEnv, make_env
 from nue.sim.explorer import ExplorerConfig, ExploringExpert
@@ -162,7 +163,7 @@ class _EpisodeRun:
             self.extra["git_commit"] = agent.git_commit
             if slots > 1:  # one agent per slot on the shared model (own recurrent state and action sampling)
                 base = agent
-                make = base.twin if hasattr(base, "twin") else lambda: load_agent(p.checkpoint, env.task, p.device)[0]
+                make = base.twin if isinstance(base, Twinnable) else lambda: load_agent(p.checkpoint, env.task, p.device)[0]
                 agent = worker_cached(("policy", p.checkpoint, p.device, env.task.name, slot, slots), make)
             if p.other is not None and isinstance(memory, OnlineNeRF):
                 recorder = memory
