@@ -289,7 +289,8 @@ def _methods(recipe: Recipe, folders: RunFolders, models) -> list[str]:
     return out
 
 
-def _run_eval(recipe: Recipe, folders: RunFolders, stage: str, workers, ray_address, device, progress) -> EvalStageSummary:
+def _run_eval(recipe: Recipe, folders: RunFolders, stage: str, workers, ray_address, device,
+              progress) -> EvalStageSummary:
     name = stage.removeprefix("eval/")
     swap = name.endswith("+swap")
     set_name = name.removesuffix("+swap")

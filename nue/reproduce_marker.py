@@ -141,7 +141,8 @@ class StageMarker:
     """What it made (the class of its kind of stage)."""
 
     def to_dict(self) -> dict:
-        return {"stage": self.stage, "seconds": self.seconds, "finished": self.finished, "summary": self.summary.to_dict()}
+        return {"stage": self.stage, "seconds": self.seconds, "finished": self.finished,
+                "summary": self.summary.to_dict()}
 
     @classmethod
     def from_dict(cls, d: dict) -> StageMarker:

@@ -6,15 +6,15 @@ is added to it, so a region seen for the first time shows as uncertain.
 
 :func:`run_episodes` runs B episodes side by side in lock step (B "slots"): each step renders the maps of
 all running episodes (one call of a slot memory, :class:`nue.nerf.slots.SlotMemory`), asks their agents for
-actions (one batched forward for the agents that are :class:`~nue.policy.protocols.BatchedAgent`, the others one by one), updates the
-memory (one call) and steps the envs in turn; an episode that ends frees its slot for the next job of the
-queue. :func:`run_episode` is its B = 1 case and makes exactly the calls of the plain loop.
+actions (one batched forward for the agents that are :class:`~nue.policy.protocols.BatchedAgent`, the others one
+by one), updates the memory (one call) and steps the envs in turn; an episode that ends frees its slot for the next
+job of the queue. :func:`run_episode` is its B = 1 case and makes exactly the calls of the plain loop.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Iterator, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Protocol
 
 import numpy as np
 
@@ -22,13 +22,16 @@ from nue.policy.protocols import Agent, BatchedAgent
 from nue.sim.env import ImageNavEnv
 from nue.sim.record import EpisodeRecord
 
+if TYPE_CHECKING:
+    from nue.nerf.online import MemoryMaps
+
 
 class Memory(Protocol):
     """The robot's memory (the online NeRF): rendered before it learns from the current frame."""
 
     def reset(self, seed: int, start_pose: np.ndarray, floor_z: float) -> None: ...
 
-    def render_maps(self, pose: np.ndarray, depth: np.ndarray, floor_z: float) -> Any: ...
+    def render_maps(self, pose: np.ndarray, depth: np.ndarray, floor_z: float) -> MemoryMaps: ...
 
     def step(self, rgb: np.ndarray, depth: np.ndarray, pose: np.ndarray, floor_z: float) -> Any: ...
 
@@ -42,7 +45,7 @@ class SlotMemory(Protocol):
     def reset_slot(self, i: int, seed: int, start_pose: np.ndarray, floor_z: float) -> None: ...
 
     def render_maps(self, slots: list[int], poses: list[np.ndarray], depths: list[np.ndarray],
-                    floor_zs: list[float]) -> list[Any]: ...
+                    floor_zs: list[float]) -> list[MemoryMaps]: ...
 
     def step(self, slots: list[int], rgbs, depths, poses, floor_zs) -> None: ...
 
@@ -53,7 +56,7 @@ class StepData:
 
     t: int
     obs: dict[str, np.ndarray]
-    maps: Any
+    maps: MemoryMaps | None
     action: int
     info: dict[str, Any]
     env: ImageNavEnv
@@ -172,8 +175,8 @@ def lockstep(
                 running[r.slot] = start(r.slot)
 
 
-def _render(active: list[_Running], memory: SlotMemory | None) -> list[Any]:
-    maps: list[Any] = [None] * len(active)
+def _render(active: list[_Running], memory: SlotMemory | None) -> list[MemoryMaps | None]:
+    maps: list[MemoryMaps | None] = [None] * len(active)
     shared = [k for k, r in enumerate(active) if r.job.memory is None and r.job.slot_memory]
     for k, r in enumerate(active):
         if r.job.memory is not None:
@@ -187,7 +190,7 @@ def _render(active: list[_Running], memory: SlotMemory | None) -> list[Any]:
     return maps
 
 
-def _act(active: list[_Running], maps: list[Any], slots: int) -> list[int]:
+def _act(active: list[_Running], maps: list[MemoryMaps | None], slots: int) -> list[int]:
     actions: list[int | None] = [None] * len(active)
     if slots > 1:
         groups: dict[Any, list[int]] = {}

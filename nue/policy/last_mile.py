@@ -98,7 +98,8 @@ which ``nue_match`` (seed 0) still recalls half the in-view steps (precision 0.5
 
 
 class LastMileAgent:
-    """Wraps an :class:`nue.policy.protocols.Agent`: ``inner`` acts until a goal estimate is accepted, then the controller.
+    """Wraps an :class:`~nue.policy.protocols.Agent`: ``inner`` acts until a goal estimate is accepted, then the
+    controller.
 
     After an episode, ``events`` lists ``(step, what, detail)`` and :meth:`summary` gives the record's entry.
     """

@@ -21,15 +21,17 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 if TYPE_CHECKING:
+    from nue.nerf.online import MemoryMaps
     from nue.sim.env import ImageNavEnv
 
 
 class Agent(Protocol):
-    """Anything that picks actions: an expert, a trained policy, a wrapper around another agent."""
+    """Anything that picks actions: an expert, a trained policy, a wrapper around another agent. ``maps``: what the
+    memory shows for the current pose (None when the episode runs without a memory)."""
 
     def reset(self, env: ImageNavEnv, obs: dict[str, np.ndarray], seed: int) -> None: ...
 
-    def act(self, obs: dict[str, np.ndarray], maps: Any) -> int: ...
+    def act(self, obs: dict[str, np.ndarray], maps: MemoryMaps | None) -> int: ...
 
 
 @runtime_checkable
