@@ -17,6 +17,9 @@ for a field in seconds, another default or help for one command, a check.
 The fields are read with :mod:`ast` from the module's source file without importing it (the config modules
 import torch; ``nue --help`` stays quick); the class is imported when the command runs. A field's docstring
 is the string literal written after it; its default must be a literal (``3``, ``"fp32"``, ``()``, ``None``).
+Why not tyro, which builds options from the imported classes: ``nue --help`` took 0.33 s of CPU this way and
+``--help`` of ``TrainConfig`` alone 2.2 s with tyro (importing the config modules and torch; docs/cli.md, measured
+with ``scripts/cli_startup.py``).
 """
 
 from __future__ import annotations
@@ -220,14 +223,6 @@ class ConfigOptions:
             raise TypeError(f"{self.ref}: no options {sorted(unknown)}")
         return ConfigOptions(self.ref, *(dataclasses.replace(o, **changes.get(o.field, {}))
                                          for o in self.opts if o.field not in drop), as_dict=self.as_dict)
-
-    def renamed(self, flags: dict[str, str], *, panel: str, see: str) -> ConfigOptions:
-        """The options of the fields in ``flags`` under the flags given there (old spellings), each listed in
-        ``panel`` with the help "`<see> <its own flag>`." (its current spelling)."""
-        by_field = {o.field: o for o in self.opts}
-        return ConfigOptions(self.ref, *(dataclasses.replace(by_field[f], flag=flag, panel=panel,
-                                                             help=f"`{see} {by_field[f].option}`.")
-                                         for f, flag in flags.items()))
 
     def field(self, name: str) -> ConfigField:
         return config_fields(self.ref)[name]

@@ -3,7 +3,6 @@ cloning, DAgger, closed-loop selection); registered on the app in :mod:`nue.cli`
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional
 
@@ -44,8 +43,7 @@ TRAIN = ConfigOptions(
     "nue.train.bc:TrainConfig", Opt("data", path=True), Opt("out", path=True), "model",
     Opt("steps", check=A.positive), Opt("batch_size", check=A.positive), "lr", "aux_weight", "goal_weight",
     Opt("time_budget_s", flag="--time-budget", minutes=True, check=A.non_negative,
-        help="Stop (and checkpoint) after this many minutes of training (0 = no limit); with the deprecated "
-             "--dagger-rounds, per round with its rollouts included."),
+        help="Stop (and checkpoint) after this many minutes of training (0 = no limit)."),
     Opt("budget_clock", check=A.one_of("nue.train.bc:BUDGET_CLOCKS")),
     Opt("eval_every", check=A.positive), "seed", Opt("device", check=A.device),
     Opt("precision", check=A.one_of("nue.train.bc:PRECISIONS")), "compile", Opt("map_dropout", check=A.probability),
@@ -63,13 +61,6 @@ SELECT = ConfigOptions(
     "nue.selection:SelectConfig", Opt("episodes_dir", path=True), Opt("scenes_root", path=True),
     Opt("candidates", check=A.positive), Opt("max_episodes", check=A.non_negative),
     Opt("max_steps", check=A.non_negative), Opt("workers", check=A.positive), Opt("device", check=A.device))
-
-_DAGGER_OLD = "Deprecated: DAgger options (use `nue dagger`)"
-_DAGGER_IN_TRAIN = DAGGER.renamed(
-    {"rounds": "--dagger-rounds", "steps_per_round": "--dagger-steps", "beta0": "--dagger-beta",
-     "episodes_per_bin": "--dagger-episodes-per-bin", "start_from": "--dagger-start"},
-    panel=_DAGGER_OLD, see="nue dagger").but(rounds={"default": 0, "help": "`nue dagger --rounds` (0 = plain BC)."})
-
 
 @config_command
 def collect_cmd(
@@ -132,26 +123,12 @@ def _run_dagger(cfg: TrainConfig, dagger: DaggerConfig, scene: list[Path], scene
 def train_cmd(
     cfg: TrainConfig = TRAIN,
     resume: bool = typer.Option(False, help="Continue from OUT/last.pt."),
-    dagger: DaggerConfig = _DAGGER_IN_TRAIN,
-    scenes_root: Path = typer.Option(Path("data/scenes"), help="`nue dagger --scenes-root`.", rich_help_panel=_DAGGER_OLD),
-    scene: list[Path] = typer.Option([], help="`nue dagger --scene`.", rich_help_panel=_DAGGER_OLD),
-    workers: int = typer.Option(1, help="`nue dagger --workers`.", rich_help_panel=_DAGGER_OLD),
-    ray_address: Optional[str] = typer.Option(None, help="`nue dagger --ray-address`.", rich_help_panel=_DAGGER_OLD),
 ):
-    """Behaviour cloning (+ auxiliary goal-angle loss) on collected demonstrations. (DAgger: `nue dagger`;
-    the --dagger-* options here are deprecated and will be removed.)"""
+    """Behaviour cloning (+ auxiliary goal-angle loss) on collected demonstrations (DAgger: `nue dagger`)."""
     from nue.selection import select_run
     from nue.train.bc import train
 
-    A.positive("--workers", workers)
     check_output_dir(cfg.out, "the run folder")
-    if dagger.rounds > 0:
-        typer.echo("warning: `nue train --dagger-*` is deprecated; use `nue dagger` (--dagger-rounds -> --rounds, "
-                   "--dagger-steps -> --round-steps, --dagger-beta -> --beta, --dagger-episodes-per-bin -> "
-                   "--episodes-per-bin, --dagger-start -> --start)", err=True)
-        _run_dagger(cfg, dataclasses.replace(dagger, round_budget_s=cfg.time_budget_s), scene, scenes_root, workers,
-                    ray_address)
-        return
     res = train(cfg, resume=resume, select=select_run)
     typer.echo(f"{res.step} steps ({res.steps_this_call} in this call, {res.elapsed_s / 60:.1f} min); "
                f"best checkpoint: {res.best}")

@@ -46,10 +46,11 @@ from nue.output_lock import hold_output
 from nue.policy.checkpoint import git_commit
 from nue.policy.last_mile import SLING_PREFIX
 from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, format_duration, format_estimate
+from nue.reproduce_marker import EvalStageSummary, HousesSummary, ReportSummary, StageMarker, StageSummary
 from nue.reproduce_train import TrainJob, collect_config, run_training, train_config, train_model  # noqa: F401
 from nue.scene.generator import SPLITS, ensure_house
 from nue.sim.episode_sets import get_episode_set
-from nue.train.collect import collect
+from nue.train.collect import CollectSummary, collect
 from nue.viz.coverage import write_coverage_figure
 
 FORMAT = "nue-reproduce/1"
@@ -130,10 +131,10 @@ def _now() -> str:
     return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
 
 
-def stage_done(folders: RunFolders, stage: str) -> dict | None:
+def stage_done(folders: RunFolders, stage: str) -> StageMarker | None:
     """The marker of a finished stage (its seconds, summary and finish time), or None."""
     path = folders.marker(stage)
-    return json.loads(path.read_text()) if path.is_file() else None
+    return StageMarker.read(path) if path.is_file() else None
 
 
 # --- stages ---------------------------------------------------------------------------------------------
@@ -235,10 +236,11 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
          f"{format_estimate(list(est.values()))}")
     stages = plan_stages(recipe)
     ran: list[str] = []
-    kept = [s for s in stages if stage_done(folders, s)]
+    done = {s: stage_done(folders, s) for s in stages}
+    kept = [s for s in stages if done[s] is not None]
 
-    def finish(stage: str, seconds: float, summary: dict) -> None:
-        _write_json(folders.marker(stage), {"stage": stage, "seconds": seconds, "finished": _now(), "summary": summary})
+    def finish(stage: str, seconds: float, summary: StageSummary) -> None:
+        _write_json(folders.marker(stage), StageMarker(stage, seconds, _now(), summary).to_dict())
         ran.append(stage)
         echo(f"  {stage}: done in {format_duration(seconds)}")
         fail_point(FAIL_AFTER_STAGE_ENV, len(ran), f"stage {stage}")
@@ -249,9 +251,10 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
 
     pending_train = [s for s in stages if s.startswith("train/") and s not in kept]
     for i, stage in enumerate(stages):
-        if stage in kept:
+        marker = done[stage]
+        if marker is not None:
             echo(f"[{i + 1}/{len(stages)}] {stage}: finished in an earlier call "
-                 f"({format_duration(stage_done(folders, stage)['seconds'])}), kept")
+                 f"({format_duration(marker.seconds)}), kept")
             continue
         if stage.startswith("train/"):
             if stage == pending_train[0]:
@@ -264,12 +267,12 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
             houses = _houses(recipe)
             for split, index in houses:
                 ensure_house(split, index, folders.scenes_root)
-            finish(stage, time.perf_counter() - t0, {"houses": [f"{s}_{k:02d}" for s, k in houses]})
+            finish(stage, time.perf_counter() - t0, HousesSummary([f"{s}_{k:02d}" for s, k in houses]))
         elif stage == "collect":
             header(i, stage, f"demonstrations -> {folders.demos}")
             collected = collect(folders.demos, collect_config(recipe, device), folders.scenes_root, workers=workers,
                                 ray_address=ray_address, progress=progress)
-            finish(stage, time.perf_counter() - t0, collected.to_dict())
+            finish(stage, time.perf_counter() - t0, collected)
         elif stage.startswith("eval/"):
             header(i, stage, f"-> {folders.records(stage)}")
             summary = _run_eval(recipe, folders, stage, workers, ray_address, device, progress)
@@ -279,7 +282,7 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
             md = write_results(recipe, folders)
             if results_md:
                 Path(results_md).write_text(md.read_text())
-            finish(stage, time.perf_counter() - t0, {"results_md": str(md)})
+            finish(stage, time.perf_counter() - t0, ReportSummary(str(md)))
     md = folders.out / "RESULTS.md"
     if results_md and "report" in kept:
         Path(results_md).write_text(md.read_text())
@@ -293,11 +296,12 @@ def _methods(recipe: Recipe, folders: RunFolders, models) -> list[str]:
         marker = stage_done(folders, f"train/{r.name}")
         if marker is None:
             raise DataError(folders.marker(f"train/{r.name}"), f"training run {r.name} has not finished in this run")
-        out.append(f"{r.name}={marker['summary']['best']}")
+        out.append(f"{r.name}={marker.train_run().best}")
     return out
 
 
-def _run_eval(recipe: Recipe, folders: RunFolders, stage: str, workers, ray_address, device, progress) -> dict:
+def _run_eval(recipe: Recipe, folders: RunFolders, stage: str, workers, ray_address, device,
+              progress) -> EvalStageSummary:
     name = stage.removeprefix("eval/")
     set_name, _, suffix = name.partition("+")
     swap = suffix == "swap"
@@ -311,7 +315,7 @@ def _run_eval(recipe: Recipe, folders: RunFolders, stage: str, workers, ray_addr
                      split=spec.split, task=recipe.task, seed=recipe.seed, device=device, swap_maps=swap,
                      max_episodes=recipe.eval_max_episodes, max_steps=recipe.eval_max_steps)
     out = run_eval(methods, folders.records(stage), cfg, workers=workers, ray_address=ray_address, progress=progress)
-    return {"records": str(out), "episode_set": set_name, "methods": methods}
+    return EvalStageSummary(str(out), set_name, methods)
 
 
 # --- report ---------------------------------------------------------------------------------------------
@@ -357,7 +361,8 @@ def write_results(recipe: Recipe, folders: RunFolders) -> Path:
         write_coverage_figure(recs, folders.out / "report" / name)
     main = recipe.eval_sets[0]
     walls = {s: stage_done(folders, s) for s in plan_stages(recipe) if s != "report"}
-    collected = (walls.get("collect") or {}).get("summary", {})
+    collect_marker = walls.get("collect")
+    collected = collect_marker.summary if collect_marker is not None else None
     started = json.loads((folders.out / "recipe.json").read_text()).get("started", "?")
     meta = {
         "command": f"nue reproduce --recipe {recipe.name} --out {folders.out}",
@@ -365,9 +370,10 @@ def write_results(recipe: Recipe, folders: RunFolders) -> Path:
         "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}",
         "recipe": f"{recipe.summary()} (all values: {folders.out / 'recipe.json'})",
         "episodes": f"`{main}`: {get_episode_set(main).description}",
-        "demonstrations": (f"{collected.get('episodes', '?')} episodes, {collected.get('steps', '?')} steps, expert SR "
-                           f"{100 * collected.get('expert_success_rate', 0):.1f}%"),
-        "stage wall-clock": "; ".join(f"{s} {format_duration(m['seconds'])}{_episode_time(folders, s)}"
+        "demonstrations": (f"{collected.episodes} episodes, {collected.steps} steps, expert SR "
+                           f"{100 * collected.expert_success_rate:.1f}%" if isinstance(collected, CollectSummary)
+                           else "? episodes, ? steps, expert SR 0.0%"),
+        "stage wall-clock": "; ".join(f"{s} {format_duration(m.seconds)}{_episode_time(folders, s)}"
                                       for s, m in walls.items() if m),
     }
     text = render_results_md(tables[main], meta, recipe.task, sets={k: v for k, v in tables.items() if k != main},

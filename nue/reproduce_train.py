@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Callable
 from nue.jobs import Job, run_jobs
 from nue.policy.config import get_model_config
 from nue.recipe import Recipe
+from nue.reproduce_marker import StageSummary, TrainRunSummary
 from nue.selection import select_run
 from nue.train.bc import TrainConfig, train
 from nue.train.collect import CollectConfig
@@ -63,23 +64,22 @@ def train_config(recipe: Recipe, run: str, folders: "RunFolders", device: str = 
         select_candidates=recipe.select_candidates, select_scenes_root=str(folders.scenes_root))
 
 
-def train_model(job: Job) -> dict:
+def train_model(job: Job) -> TrainRunSummary:
     """Worker: one training run (resuming its run folder); its best checkpoint, steps, model and training seed. One
     torch thread, as every job of ``run_jobs``."""
     p: TrainJob = job.payload
     t0 = time.perf_counter()
     if p.dagger is None:
         res = train(p.train, resume=True, progress=p.progress, select=select_run)
-        out = {"best": str(res.best), "steps": res.step, "train_seconds": res.elapsed_s}
-    else:
-        rounds = run_dagger(p.train, p.collect, p.dagger, p.scenes_root, workers=1, progress=p.progress,
-                            select=select_run)
-        out = {"best": str(rounds[-1].best), "rounds": [r.to_dict() for r in rounds]}
-    return {**out, "model": p.train.model, "seed": p.train.seed, "seconds": time.perf_counter() - t0}
+        return TrainRunSummary(best=str(res.best), steps=res.step, train_seconds=res.elapsed_s, model=p.train.model,
+                               seed=p.train.seed, seconds=time.perf_counter() - t0)
+    rounds = run_dagger(p.train, p.collect, p.dagger, p.scenes_root, workers=1, progress=p.progress, select=select_run)
+    return TrainRunSummary(best=str(rounds[-1].best), rounds=rounds, model=p.train.model, seed=p.train.seed,
+                           seconds=time.perf_counter() - t0)
 
 
 def run_training(recipe: Recipe, folders: "RunFolders", stages: list[str], workers: int, ray_address, device, progress,
-                 finish: Callable[[str, float, dict], None], compile: bool = False) -> None:
+                 finish: Callable[[str, float, StageSummary], None], compile: bool = False) -> None:
     """The training runs of ``stages`` (``train/<run>``) side by side on ``workers`` processes (or Ray tasks), one
     torch thread each; ``finish(stage, seconds, summary)`` as each ends."""
     dagger = None
@@ -91,7 +91,7 @@ def run_training(recipe: Recipe, folders: "RunFolders", stages: list[str], worke
                                 collect_config(recipe, device), dagger, str(folders.scenes_root), progress and single))
             for stage in stages]
 
-    def on_result(job: Job, result: dict) -> None:
-        finish(job.key, result["seconds"], result)
+    def on_result(job: Job, result: TrainRunSummary) -> None:
+        finish(job.key, result.seconds, result)
 
     run_jobs(jobs, train_model, on_result, workers=workers, ray_address=ray_address, desc="train", progress=progress)

@@ -6,34 +6,24 @@ is added to it, so a region seen for the first time shows as uncertain.
 
 :func:`run_episodes` runs B episodes side by side in lock step (B "slots"): each step renders the maps of
 all running episodes (one call of a slot memory, :class:`nue.nerf.slots.SlotMemory`), asks their agents for
-actions (one batched forward for the agents that have ``act_batch``, the others one by one), updates the
-memory (one call) and steps the envs in turn; an episode that ends frees its slot for the next job of the
-queue. :func:`run_episode` is its B = 1 case and makes exactly the calls of the plain loop.
+actions (one batched forward for the agents that are :class:`~nue.policy.protocols.BatchedAgent`, the others one
+by one), updates the memory (one call) and steps the envs in turn; an episode that ends frees its slot for the next
+job of the queue. :func:`run_episode` is its B = 1 case and makes exactly the calls of the plain loop.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Iterator, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Protocol
 
 import numpy as np
 
+from nue.policy.protocols import Agent, BatchedAgent
 from nue.sim.env import ImageNavEnv
 from nue.sim.record import EpisodeRecord
 
-
-class Agent(Protocol):
-    """Anything that picks actions: the expert, a trained policy, a mix of both.
-
-    An agent may also offer a batched forward for the lock-step loop: ``batch_key()`` (agents whose keys are
-    equal can share one forward) and ``act_batch(agents, obs_list, maps_list, rows, positions) -> list[int]`` (a
-    static method: the actions of ``agents`` for their observations, in one forward of ``rows`` rows, agent k in
-    row ``positions[k]``).
-    """
-
-    def reset(self, env: ImageNavEnv, obs: dict[str, np.ndarray], seed: int) -> None: ...
-
-    def act(self, obs: dict[str, np.ndarray], maps: Any) -> int: ...
+if TYPE_CHECKING:
+    from nue.nerf.online import MemoryMaps
 
 
 class Memory(Protocol):
@@ -41,7 +31,7 @@ class Memory(Protocol):
 
     def reset(self, seed: int, start_pose: np.ndarray, floor_z: float) -> None: ...
 
-    def render_maps(self, pose: np.ndarray, depth: np.ndarray, floor_z: float) -> Any: ...
+    def render_maps(self, pose: np.ndarray, depth: np.ndarray, floor_z: float) -> MemoryMaps: ...
 
     def step(self, rgb: np.ndarray, depth: np.ndarray, pose: np.ndarray, floor_z: float) -> Any: ...
 
@@ -55,7 +45,7 @@ class SlotMemory(Protocol):
     def reset_slot(self, i: int, seed: int, start_pose: np.ndarray, floor_z: float) -> None: ...
 
     def render_maps(self, slots: list[int], poses: list[np.ndarray], depths: list[np.ndarray],
-                    floor_zs: list[float]) -> list[Any]: ...
+                    floor_zs: list[float]) -> list[MemoryMaps]: ...
 
     def step(self, slots: list[int], rgbs, depths, poses, floor_zs) -> None: ...
 
@@ -66,7 +56,7 @@ class StepData:
 
     t: int
     obs: dict[str, np.ndarray]
-    maps: Any
+    maps: MemoryMaps | None
     action: int
     info: dict[str, Any]
     env: ImageNavEnv
@@ -146,7 +136,7 @@ def lockstep(
     job: per-slot envs, agents, trackers). Jobs start in order, each in the lowest free slot, as soon as a
     slot is free. ``memory``: the slots' memory for jobs with ``slot_memory`` (``memory.slots >= slots``).
 
-    With ``slots > 1`` agents that have ``act_batch`` run in one forward per step and group of equal
+    With ``slots > 1`` agents that are :class:`~nue.policy.protocols.BatchedAgent` run in one forward per step and group of equal
     ``batch_key()``, always of ``slots`` rows (padded), each in the row of its slot: an episode's numbers depend
     on its own inputs, ``slots`` and (on some CPUs, in the last bit) its slot index, never on the contents of
     the other rows. With ``slots == 1`` every agent's ``act`` is called (the plain loop's arithmetic).
@@ -185,8 +175,8 @@ def lockstep(
                 running[r.slot] = start(r.slot)
 
 
-def _render(active: list[_Running], memory: SlotMemory | None) -> list[Any]:
-    maps: list[Any] = [None] * len(active)
+def _render(active: list[_Running], memory: SlotMemory | None) -> list[MemoryMaps | None]:
+    maps: list[MemoryMaps | None] = [None] * len(active)
     shared = [k for k, r in enumerate(active) if r.job.memory is None and r.job.slot_memory]
     for k, r in enumerate(active):
         if r.job.memory is not None:
@@ -200,13 +190,14 @@ def _render(active: list[_Running], memory: SlotMemory | None) -> list[Any]:
     return maps
 
 
-def _act(active: list[_Running], maps: list[Any], slots: int) -> list[int]:
+def _act(active: list[_Running], maps: list[MemoryMaps | None], slots: int) -> list[int]:
     actions: list[int | None] = [None] * len(active)
     if slots > 1:
         groups: dict[Any, list[int]] = {}
         for k, r in enumerate(active):
-            if hasattr(r.job.agent, "act_batch"):
-                groups.setdefault((type(r.job.agent), r.job.agent.batch_key()), []).append(k)  # type: ignore[attr-defined]
+            agent = r.job.agent
+            if isinstance(agent, BatchedAgent):
+                groups.setdefault((type(agent), agent.batch_key()), []).append(k)
         for (kind, _), ks in groups.items():
             out = kind.act_batch([active[k].job.agent for k in ks], [active[k].obs for k in ks], [maps[k] for k in ks],
                                  rows=slots, positions=[active[k].slot for k in ks])

@@ -69,7 +69,7 @@ def test_train_help_shows_each_config_option_with_the_fields_default_and_docstri
             assert f"{param.help} [default: {shown}]" in text, o.field  # a flag: [default: no-compile]
     assert "--lr <float> Peak AdamW learning rate. [default: 0.001]" in text  # the docstring, by hand
     assert "--time-budget <float> Stop (and checkpoint) after this many minutes" in text
-    assert "--dagger-steps <int> `nue dagger --round-steps`. [default: 1000]" in text  # the deprecated spelling
+    assert "--dagger" not in text and "--rounds" not in text  # DAgger is `nue dagger`'s (the old spellings are gone)
 
 
 def test_dagger_has_trains_options_and_its_own():
@@ -82,7 +82,7 @@ def test_dagger_has_trains_options_and_its_own():
     defaults = {f.name: f.default for f in dataclasses.fields(DaggerConfig)}
     assert dagger["--beta"].default == defaults["beta0"] and dagger["--round-steps"].default == defaults["steps_per_round"]
     assert dagger["--time-budget"].default == defaults["round_budget_s"] / 60
-    assert train["--dagger-rounds"].default == 0  # the deprecated spelling: 0 = no DAgger
+    assert not {"--dagger-rounds", "--rounds", "--scene", "--workers"} & set(train)  # removed from `nue train`
 
 
 def test_every_config_option_has_the_default_and_type_its_dataclass_has():

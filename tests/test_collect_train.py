@@ -472,8 +472,9 @@ def test_dagger_from_a_given_checkpoint_counts_rollouts_against_the_round_budget
     assert load_checkpoint(tmp_path / "run" / "round_1" / "best.pt")["model_config"]["name"] == "nue"
 
 
-def test_deprecated_train_dagger_options_run_the_same_dagger(monkeypatch, capsys, tmp_path):
-    """``nue train --dagger-*`` (deprecated) builds the same run as ``nue dagger`` and warns on stderr."""
+def test_dagger_options_are_nue_daggers_and_nue_train_refuses_the_removed_spellings(monkeypatch, capsys, tmp_path):
+    """``nue dagger`` builds the DAgger run from its options; ``nue train --dagger-*`` (deprecated, now removed; see
+    docs/cli.md's changelog) stops with the one-line error of an unknown option, exit 2, before anything runs."""
     import nue.cli_learn
     from nue.cli import main
 
@@ -481,16 +482,23 @@ def test_deprecated_train_dagger_options_run_the_same_dagger(monkeypatch, capsys
     monkeypatch.setattr(nue.cli_learn, "_run_dagger", lambda *args: runs.append(args))
     common = ["--data", str(tmp_path / "d"), "--out", str(tmp_path / "run"), "--steps", "7", "--time-budget", "2",
               "--scene", "a", "--scenes-root", str(tmp_path / "s"), "--workers", "2"]
-    for argv in (["train", *common, "--dagger-rounds", "3", "--dagger-steps", "5", "--dagger-beta", "0.3",
-                  "--dagger-episodes-per-bin", "1", "--dagger-start", "x.pt"],
-                 ["dagger", *common, "--rounds", "3", "--round-steps", "5", "--beta", "0.3", "--episodes-per-bin", "1",
-                  "--start", "x.pt"]):
+    with pytest.raises(SystemExit) as stop:
+        main(["dagger", *common, "--rounds", "3", "--round-steps", "5", "--beta", "0.3", "--episodes-per-bin", "1",
+              "--start", "x.pt"])
+    assert stop.value.code == 0
+    (cfg, dagger, scene, scenes_root, workers, _), = runs
+    assert (dagger.rounds, dagger.steps_per_round, dagger.beta0, dagger.episodes_per_bin, dagger.start_from) == (
+        3, 5, 0.3, 1, "x.pt")
+    assert dagger.round_budget_s == 120 and cfg.time_budget_s == 120 and cfg.steps == 7
+    assert scene == [Path("a")] and scenes_root == tmp_path / "s" and workers == 2
+    capsys.readouterr()
+    for old in (["--dagger-rounds", "3"], ["--dagger-steps", "5"], ["--dagger-beta", "0.3"],
+                ["--dagger-episodes-per-bin", "1"], ["--dagger-start", "x.pt"], ["--scene", "a"], ["--workers", "2"]):
         with pytest.raises(SystemExit) as stop:
-            main(argv)
-        assert stop.value.code == 0
-    assert "deprecated; use `nue dagger`" in capsys.readouterr().err
-    old, new = runs
-    assert old == new and new[1].rounds == 3 and new[1].round_budget_s == 120 and new[0].steps == 7
+            main(["train", "--data", str(tmp_path / "d"), "--out", str(tmp_path / "run2"), *old])
+        err = capsys.readouterr().err.strip()
+        assert stop.value.code == 2 and old[0] in err and "\n" not in err, err
+    assert len(runs) == 1 and not (tmp_path / "run2").exists()
 
 
 def test_subsample_keeps_the_first_episodes_of_each_bin():

@@ -26,7 +26,9 @@ from nue.policy.checkpoint import load_checkpoint, load_policy
 from nue.policy.config import ABLATION_PRESETS, get_model_config
 from nue.recipe import RECIPES, TABLE_I_MODELS, StepPlan, estimate, format_estimate, get_recipe, training_seed
 from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, plan_stages, reproduce, train_config
+from nue.reproduce_marker import HousesSummary, StageMarker, TrainRunSummary
 from nue.reproduce_train import run_training
+from nue.train.collect import CollectSummary
 
 EPISODES = Path(__file__).resolve().parents[1] / "episodes"
 pytestmark = pytest.mark.timeout(600)  # the quick run takes ~35 s of CPU; a loaded machine stretches the wall clock
@@ -38,6 +40,13 @@ def _nue(*args) -> tuple[int, str]:
     with contextlib.redirect_stdout(buf), pytest.raises(SystemExit) as stop:
         main([str(a) for a in args])
     return stop.value.code, buf.getvalue()
+
+
+def _finished(folders: RunFolders, stage: str) -> None:
+    """Leave the marker of a finished ``scenes``, ``collect`` or ``train/<run>`` stage (made-up numbers)."""
+    summary = {"scenes": HousesSummary(["train_00"]), "collect": CollectSummary(1, 10, 100, 10.0, 1.0, "abcd")}.get(
+        stage, TrainRunSummary(best=f"runs/{stage.removeprefix('train/')}/best.pt", seconds=1.0))
+    folders.marker(stage).write_text(json.dumps(StageMarker(stage, 1.0, "2026-12-05 00:00 UTC", summary).to_dict()))
 
 
 def _stamps(folder: Path) -> dict[str, int]:
@@ -132,11 +141,11 @@ def test_a_recipe_with_dagger_rounds_trains_through_them(run, tmp_path):
     done = {}
     run_training(recipe, folders, ["train/fr"], workers=1, ray_address=None, device="cpu", progress=False,
                   finish=lambda stage, seconds, result: done.update({stage: result}))
-    rounds = done["train/fr"]["rounds"]
-    assert [r["round"] for r in rounds] == [0, 1] and rounds[1]["beta"] == 0.5
-    assert rounds[1]["collected"]["episodes"] == 3  # 1 house x 3 bins x the first episode
-    assert Path(done["train/fr"]["best"]) == Path(rounds[1]["best"]) and "round_1" in rounds[1]["best"]
-    assert Path(rounds[1]["best"]).is_file() and rounds[1]["data"].endswith("data_r1")
+    rounds = done["train/fr"].rounds
+    assert [r.round for r in rounds] == [0, 1] and rounds[1].beta == 0.5
+    assert rounds[1].collected.episodes == 3  # 1 house x 3 bins x the first episode
+    assert Path(done["train/fr"].best) == rounds[1].best and "round_1" in str(rounds[1].best)
+    assert rounds[1].best.is_file() and rounds[1].data.endswith("data_r1")
 
 
 def test_a_rerun_with_another_recipe_is_refused(run):
@@ -230,7 +239,7 @@ def test_a_resumed_run_estimates_only_what_is_left(tmp_path):
     assert fresh == {s.stage: s for s in estimate(v6, 2)}  # nothing done yet: the whole estimate
     folders.marker("collect").parent.mkdir(parents=True)
     for stage in ["scenes", "collect", *[f"train/{m}" for m in v6.models[:6]]]:
-        folders.marker(stage).write_text(json.dumps({"stage": stage, "seconds": 1.0}))
+        _finished(folders, stage)
     runs = 252 * (len(v6.models) + len(v6.experts))
     folders.records("eval/val252").parent.mkdir()
     folders.records("eval/val252").write_text("{}\n" * (runs // 4))  # a quarter of the runs recorded
@@ -411,7 +420,7 @@ def test_a_resumed_seeded_run_estimates_the_seeds_left(tmp_path):
     folders = RunFolders(tmp_path, Path(), Path())
     folders.marker("collect").parent.mkdir(parents=True)
     for stage in ["scenes", "collect", *[f"train/{m}" for m in v7.models]]:
-        folders.marker(stage).write_text(json.dumps({"stage": stage, "seconds": 1.0}))
+        _finished(folders, stage)
     folders.records("eval/val252").parent.mkdir()
     folders.records("eval/val252").write_text("{}\n" * (252 * 18 // 2))
     left = {s.stage: s for s in remaining_estimate(v7, folders, 2)}

@@ -18,12 +18,13 @@ from nue.evaluate.eval_job import EvalJob
 from nue.evaluate.handoff import HANDOFF_KEY, GoalSightTracker, geodesic_along, handoff
 from nue.jobs import Job, worker_cached
 from nue.nerf.config import get_memory
-from nue.nerf.online import OnlineNeRF
+from nue.nerf.online import MemoryMaps, OnlineNeRF
 from nue.nerf.slots import slot_memory
 from nue.policy.agent import ExpertAgent, RandomAgent
 from nue.policy.checkpoint import load_agent
 from nue.policy.last_mile import LastMileAgent
 from nue.policy.nrns_agent import NRNSAgent
+from nue.policy.protocols import Twinnable
 from nue.rollout import EpisodeJob, lockstep, run_episode
 from nue.sim.env import ImageNavEnv, make_env
 from nue.sim.explorer import ExplorerConfig, ExploringExpert
@@ -61,13 +62,13 @@ def batch_jobs(todo: list[Job], slots: int) -> list[Job]:
 class MapReplay:
     """A memory that ignores the current episode and replays maps recorded in another one."""
 
-    def __init__(self, maps: list):
+    def __init__(self, maps: list[MemoryMaps]):
         self.maps = maps
 
     def reset(self, seed, start_pose, floor_z) -> None:
         self.t = 0
 
-    def render_maps(self, pose, depth, floor_z):
+    def render_maps(self, pose, depth, floor_z) -> MemoryMaps:
         m = self.maps[min(self.t, len(self.maps) - 1)]
         self.t += 1
         return m
@@ -162,7 +163,8 @@ class _EpisodeRun:
             self.extra["git_commit"] = agent.git_commit
             if slots > 1:  # one agent per slot on the shared model (own recurrent state and action sampling)
                 base = agent
-                make = base.twin if hasattr(base, "twin") else lambda: load_agent(p.checkpoint, env.task, p.device)[0]
+                make = (base.twin if isinstance(base, Twinnable)
+                        else lambda: load_agent(p.checkpoint, env.task, p.device)[0])
                 agent = worker_cached(("policy", p.checkpoint, p.device, env.task.name, slot, slots), make)
             if p.other is not None and isinstance(memory, OnlineNeRF):
                 recorder = memory

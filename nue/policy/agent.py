@@ -15,6 +15,7 @@ import torch
 
 from nue.policy.base import PolicyModel, choose_actions
 from nue.policy.inputs import PolicyInput, prepare_goal, prepare_input
+from nue.policy.protocols import expert_label, tell_executed
 from nue.policy.uncertainty_expert import UncertaintyExpert
 from nue.sim.env import ImageNavEnv
 from nue.sim.expert import ExpertConfig, GeodesicExpert
@@ -222,8 +223,7 @@ class MixedAgent:
 
     def executed(self, action: int) -> None:
         """Pass the executed action on to the expert (its blocked-move check compares against it)."""
-        if hasattr(self.expert, "executed"):
-            self.expert.executed(action)
+        tell_executed(self.expert, action)
 
 
 class NoisyAgent:
@@ -253,11 +253,10 @@ class NoisyAgent:
 
     def act(self, obs, maps) -> int:
         action = int(self.inner.act(obs, maps))
-        label = getattr(self.inner, "last_expert_action", None)
+        label = expert_label(self.inner)
         self.last_expert_action = action if label is None else int(label)
         if self.rng.random() < self.epsilon:
             action = int(self.rng.choice(self.moves))
             self.noisy_steps += 1
-            if hasattr(self.inner, "executed"):
-                self.inner.executed(action)
+            tell_executed(self.inner, action)
         return action

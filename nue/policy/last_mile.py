@@ -27,6 +27,7 @@ import numpy as np
 
 from nue.policy.commit import LearnedGoalLocator, LearnedLocatorConfig
 from nue.policy.goal_pose import GoalPoseConfig, GoalPoseEstimator, GoalTracker, TrackerConfig
+from nue.policy.protocols import tell_executed
 from nue.policy.seen_map import SeenMap, SeenMapConfig
 from nue.sim.expert import ExpertConfig, PathDriver
 
@@ -97,7 +98,8 @@ which ``nue_match`` (seed 0) still recalls half the in-view steps (precision 0.5
 
 
 class LastMileAgent:
-    """Wraps an :class:`nue.rollout.Agent`: ``inner`` acts until a goal estimate is accepted, then the controller.
+    """Wraps an :class:`~nue.policy.protocols.Agent`: ``inner`` acts until a goal estimate is accepted, then the
+    controller.
 
     After an episode, ``events`` lists ``(step, what, detail)`` and :meth:`summary` gives the record's entry.
     """
@@ -160,16 +162,15 @@ class LastMileAgent:
             self.inner_actions += 1
             return inner_action
         self.control_steps += 1
-        if action != inner_action and hasattr(self.inner, "executed"):
-            self.inner.executed(action)
+        if action != inner_action:
+            tell_executed(self.inner, action)
         return action
 
     def executed(self, action: int) -> None:
         """Told by an outer wrapper which action was executed (the steering's blocked-move check uses it)."""
         if self.driving:
             self.driver.executed(action)
-        if hasattr(self.inner, "executed"):
-            self.inner.executed(action)
+        tell_executed(self.inner, action)
 
     # -- internals ------------------------------------------------------------------------------
     def _measure(self, obs, pose) -> None:

@@ -68,7 +68,7 @@ class NRNSAgentConfig:
 
 
 class NRNSAgent:
-    """An :class:`nue.rollout.Agent` acting with a trained :class:`DistanceNetwork`."""
+    """An :class:`nue.policy.protocols.Agent` acting with a trained :class:`DistanceNetwork`."""
 
     def __init__(self, model: DistanceNetwork, config: NRNSAgentConfig = NRNSAgentConfig(),
                  device: str | torch.device = "cpu", git_commit: str = ""):

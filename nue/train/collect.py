@@ -31,6 +31,7 @@ from nue.policy.agent import EXPERT_KINDS, ExpertAgent, MixedAgent, NoisyAgent
 from nue.policy.checkpoint import load_agent
 from nue.policy.config import get_model_config
 from nue.policy.inputs import prepare_input, resize_area
+from nue.policy.protocols import expert_label
 from nue.rollout import run_episode
 from nue.scene.generator import SPLITS, ensure_house
 from nue.scene.scene import Scene
@@ -320,7 +321,7 @@ class DemoRecorder:
         cfg = self.config
         maps = s.maps
         inp = prepare_input(s.obs["rgb"], s.obs["depth"], s.obs["goal"], maps.i_u, maps.i_cog, cfg)
-        label = getattr(self.agent, "last_expert_action", None)
+        label = expert_label(self.agent)
         panorama = getattr(maps, "panorama", None)
         if panorama is not None:  # memory presets with a panorama: kept for the models that read it
             self.panorama.append(panorama.detach().cpu().numpy().astype(np.float16))
