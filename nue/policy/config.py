@@ -300,6 +300,9 @@ MODEL_PRESETS: dict[str, ModelConfig] = {
     "nue_pano_gru": _NUE.replace(name="nue_pano_gru", panorama_dim=32, gru_dim=256),
     "nue_goal": _NUE.replace(name="nue_goal", goal_head=True),
     "nue_match": _NUE.replace(name="nue_match", goal_head=True, goal_match=32),
+    "nue_lean": _NUE.replace(name="nue_lean", map_height=30, map_width=40),
+    "abl_at_cbam_lean": _NUE.replace(name="abl_at_cbam_lean", use_uncertainty=False, use_aux=True, use_cbam=True,
+                                     map_height=30, map_width=40),
     "abl_none": _NUE.replace(name="abl_none", use_uncertainty=False, use_aux=False, use_cbam=False),
     "abl_fu": _NUE.replace(name="abl_fu", use_uncertainty=True, use_aux=False, use_cbam=False),
     "abl_at_cbam": _NUE.replace(name="abl_at_cbam", use_uncertainty=False, use_aux=True, use_cbam=True),
@@ -314,7 +317,9 @@ MODEL_PRESETS: dict[str, ModelConfig] = {
     "vgm": _NUE.replace(name="vgm", kind="vgm", use_uncertainty=False, use_aux=False, use_cbam=False,
                         goal_in_perception=False),
 }
-"""Named model configs. The five ``abl_*`` rows and ``nue`` are paper Table I's ablation block."""
+"""Named model configs. The five ``abl_*`` rows and ``nue`` are paper Table I's ablation block. ``nue_lean`` and
+``abl_at_cbam_lean`` (NUE and its no-f_u ablation) read the ``lean`` memory preset's 30 x 40 maps (collect with
+``--memory lean``)."""
 
 ABLATION_PRESETS: tuple[str, ...] = ("abl_none", "abl_fu", "abl_at_cbam", "abl_fu_cbam", "abl_fu_at")
 """The paper's five ablation rows, in Table I order."""
