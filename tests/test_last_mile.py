@@ -197,6 +197,36 @@ def test_wrapper_hands_back_control_when_the_estimate_is_dropped(box_scene, box_
     json.dumps(summary)
 
 
+class _Fixed:
+    """An estimator that always measures the goal ``distance`` metres straight ahead."""
+
+    def __init__(self, distance):
+        self.distance, self.report = distance, SimpleNamespace(matches=50)
+
+    def estimate(self, rgb, depth, pose):
+        xy = np.asarray(pose[:2]) + self.distance * np.array([math.cos(pose[2]), math.sin(pose[2])])
+        return GoalMeasurement(xy, 0.0, 30, 50, self.distance, 0.5, 0.9)
+
+
+def test_a_goal_measured_inside_the_success_radius_is_rejected_when_that_is_asked(box_scene, box_nav, box_renderer):
+    """Without STOP, success ends the episode, so a running episode's goal is never within the success radius: with
+    ``reject_inside_success`` a measurement 0.5 m away (radius 0.8 m) is dropped, one 1.5 m away kept; off, both
+    are kept (the default, which the recorded SLING rows ran with: their settings dict is unchanged)."""
+    env = ImageNavEnv(box_scene, TASK, navgrid=box_nav, renderer=box_renderer)
+    obs, _ = env.reset(options={"episode": _episode((-2.0, -2.0), 0.0, (0.0, -1.5))})
+    assert not TASK.success_requires_stop and TASK.success_radius == 0.8
+    for on, kept in ((True, [1.5]), (False, [0.5, 1.5])):
+        agent = LastMileAgent(_Inner(), LastMileConfig(reject_inside_success=on))
+        agent.reset(SimpleNamespace(task=env.task, floor_z=env.floor_z), obs, 0)
+        for d in (0.5, 1.5):
+            agent.estimator = _Fixed(d)
+            agent._measure(obs, np.asarray(obs["pose"], dtype=float))
+        assert [m[5] for m in agent.measurements] == kept
+        assert any(e[1] == "reject_inside_success" for e in agent.events) == on
+    assert "reject_inside_success" not in LastMileConfig().to_dict()
+    assert LastMileConfig(reject_inside_success=True).to_dict()["reject_inside_success"] is True
+
+
 @pytest.fixture(scope="module")
 def episodes_dir(tmp_path_factory, box_scene, box_nav, box_renderer):
     d = tmp_path_factory.mktemp("episodes")

@@ -70,6 +70,9 @@ class LastMileConfig:
     ``learned`` (the wrapped policy's goal head, :mod:`nue.policy.commit`; the ``commit+`` methods)."""
     learned: LearnedLocatorConfig = field(default_factory=LearnedLocatorConfig)
     """The learned locator's settings (``locator="learned"``)."""
+    reject_inside_success: bool = False
+    """Reject a measurement that puts the goal within the task's success radius of the robot when success needs no
+    STOP: the episode would have ended, so that goal is a look-alike elsewhere (a repeated texture seen close up)."""
 
     def __post_init__(self) -> None:
         if self.locator not in LOCATORS:
@@ -77,10 +80,13 @@ class LastMileConfig:
 
     def to_dict(self) -> dict:
         """Every setting as plain JSON values (nested dicts), as records store it; the locator's entries only when
-        it is not ``sift`` (records from before it existed keep their exact settings)."""
+        it is not ``sift`` and ``reject_inside_success`` only when on (records from before they existed keep their exact
+        settings)."""
         d = dataclasses.asdict(self)
         if self.locator == "sift":
             del d["locator"], d["learned"]
+        if not self.reject_inside_success:
+            del d["reject_inside_success"]
         return d
 
     def replace(self, **changes) -> "LastMileConfig":
@@ -177,6 +183,10 @@ class LastMileAgent:
         self.timing["matches"] += 1
         m = self.estimator.estimate(obs["rgb"], obs["depth"], pose)
         if m is None:
+            return
+        if (self.config.reject_inside_success and not self.task.success_requires_stop
+                and m.distance < self.task.success_radius):
+            self.events.append((self.t, "reject_inside_success", round(float(m.distance), 3)))
             return
         self.measurements.append((self.t, float(m.xy[0]), float(m.xy[1]), float(m.yaw), m.inliers, m.distance))
         if len(self.measurements) == 1:
