@@ -616,3 +616,16 @@ def test_goal_head_model_learns_its_labels_and_reports_them_at_decision_time(ref
     agent, memory = load_agent(res.last, env.task)
     run_episode(env, agent, memory=memory, seed=0)
     assert 0.0 <= agent.last_goal_view <= 1.0 and agent.last_goal_distance > 0.0
+
+
+def test_flat_step_indices_locate_their_episode_and_a_fixed_sample_is_reproducible(demos):
+    ds = DemoSet(demos, "train")
+    first, second = int(ds.lengths[0]), int(ds.lengths[1])
+    ep, st = ds.locate(np.array([0, first - 1, first, first + second - 1]))
+    assert ep.tolist() == [0, 0, 1, 1] and st.tolist() == [0, first - 1, 0, second - 1]
+    a, b = ds.sample_steps(5, seed=3), ds.sample_steps(5, seed=3)
+    assert (a[0] == b[0]).all() and (a[1] == b[1]).all() and len(a[0]) == 5
+    flat = ds.offsets[a[0]] + a[1]
+    assert len(set(flat.tolist())) == 5 and (np.diff(flat) > 0).all()  # distinct, in order
+    every = ds.sample_steps(len(ds) + 10, seed=0)  # asking for more than there are: every step once
+    assert (ds.offsets[every[0]] + every[1]).tolist() == list(range(len(ds)))

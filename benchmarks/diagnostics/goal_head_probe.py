@@ -108,15 +108,10 @@ def main() -> None:
             print(f"step {step} loss {loss.item():.4f} ({time.time() - t0:.0f} s)", flush=True)
 
     # held-out scores
-    rng = np.random.default_rng(1)
-    idx = np.arange(len(held))
-    if len(idx) > args.max_heldout_steps:
-        idx = np.sort(rng.choice(idx, args.max_heldout_steps, replace=False))
-    ep_of = np.searchsorted(held.offsets, idx, side="right") - 1
-    st_of = idx - held.offsets[ep_of]
+    ep_of, st_of = held.sample_steps(args.max_heldout_steps, 1)
     probs, logds, angles, labels, dists, true_angles = [], [], [], [], [], []
     with torch.no_grad():
-        for i in range(0, len(idx), 256):
+        for i in range(0, len(ep_of), 256):
             b = held.batch(ep_of[i:i + 256], st_of[i:i + 256], cfg)
             full = model(b.inp)
             if trained:  # the model's own head (with its inputs, e.g. f_match)
@@ -140,7 +135,7 @@ def main() -> None:
     e_full, e_angle = pos_err(dp, a), pos_err(d, a)
     scores = {
         "checkpoint": args.checkpoint, "data": args.data, "features": args.features, "steps": args.steps,
-        "train_steps": len(train), "heldout_scored": int(len(idx)), "heldout_in_view": int(y.sum()),
+        "train_steps": len(train), "heldout_scored": int(len(ep_of)), "heldout_in_view": int(y.sum()),
         "auroc": round(auroc(p, y), 4),
         "precision_at_0.5": round(float((pred & y).sum() / max(pred.sum(), 1)), 4),
         "recall_at_0.5": round(float((pred & y).sum() / max(y.sum(), 1)), 4),

@@ -34,14 +34,6 @@ from nue.policy.goal_match import GoalMatch
 from nue.train.dataset import BufferSampler, DemoSet
 
 
-def sample_steps(data: DemoSet, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    idx = np.arange(len(data))
-    if len(idx) > n:
-        idx = np.sort(np.random.default_rng(seed).choice(idx, n, replace=False))
-    ep = np.searchsorted(data.offsets, idx, side="right") - 1
-    return ep, idx - data.offsets[ep]
-
-
 def to_u8(x: torch.Tensor) -> np.ndarray:
     """(3, h, w) float in [0, 1] -> (h, w, 3) uint8."""
     return np.ascontiguousarray((x.clamp(0, 1).permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
@@ -122,7 +114,7 @@ def main() -> None:
     cfg = get_model_config("fr").replace(goal_head=False)
     cfg = dataclass_with_labels(cfg)
     train, held = DemoSet(args.data, "train"), DemoSet(args.data, "heldout")
-    ep, st = sample_steps(held, args.heldout_steps, 1)
+    ep, st = held.sample_steps(args.heldout_steps, 1)
     t0 = time.time()
     s, y = sift_scores(held, ep, st, cfg)
     out: dict = {"data": args.data, "heldout_scored": int(len(ep)), "heldout_in_view": int(y.sum()),

@@ -29,14 +29,6 @@ TEMPERATURES = (0.02, 0.05, 0.1, 0.2)
 """Softmax temperatures (on cosines) of the soft bearing: the column profile's weighted mean column."""
 
 
-def sample_steps(data: DemoSet, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    idx = np.arange(len(data))
-    if len(idx) > n:
-        idx = np.sort(np.random.default_rng(seed).choice(idx, n, replace=False))
-    ep = np.searchsorted(data.offsets, idx, side="right") - 1
-    return ep, idx - data.offsets[ep]
-
-
 def wrap(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2 * np.pi) - np.pi
 
@@ -53,7 +45,7 @@ def main() -> None:
     model.eval()
     cfg = header.model
     held = DemoSet(args.data, "heldout")
-    ep, st = sample_steps(held, args.heldout_steps, 1)
+    ep, st = held.sample_steps(args.heldout_steps, 1)
     rows: dict[str, list[np.ndarray]] = {k: [] for k in ("view", "true_angle", "true_d", "aux_angle", "head_p",
                                                           "head_d", "map_angle", "map_range", "map_peak", "zero_angle",
                                                           *(f"w{t}_angle" for t in TEMPERATURES))}

@@ -27,14 +27,6 @@ DISTANCE_BINS = ((0.0, 1.0), (1.0, 2.0), (2.0, 3.0), (3.0, 1e9))
 """Straight-line distance to the goal (metres) of the split."""
 
 
-def sample_steps(data: DemoSet, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    idx = np.arange(len(data))
-    if len(idx) > n:
-        idx = np.sort(np.random.default_rng(seed).choice(idx, n, replace=False))
-    ep = np.searchsorted(data.offsets, idx, side="right") - 1
-    return ep, idx - data.offsets[ep]
-
-
 def score(checkpoint: str, held: DemoSet, ep: np.ndarray, st: np.ndarray) -> dict:
     model, header = load_policy(checkpoint)
     model.eval()
@@ -72,7 +64,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(1)
     held = DemoSet(args.data, "heldout")
-    ep, st = sample_steps(held, args.heldout_steps, 1)
+    ep, st = held.sample_steps(args.heldout_steps, 1)
     out = {"data": args.data, "heldout_steps": int(len(ep))}
     for spec in args.checkpoint:
         name, _, path = spec.partition("=")

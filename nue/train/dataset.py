@@ -105,6 +105,19 @@ class DemoSet:
     def n_episodes(self) -> int:
         return len(self.episodes)
 
+    def locate(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(episode, step within it) of flat step indices ``idx`` (0 .. len - 1)."""
+        ep = np.searchsorted(self.offsets, idx, side="right") - 1
+        return ep, np.asarray(idx) - self.offsets[ep]
+
+    def sample_steps(self, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        """(episodes, steps) of ``n`` distinct steps drawn with ``numpy.random.default_rng(seed)``, in order (every
+        step when there are no more than ``n``): a fixed evaluation sample of the set."""
+        idx = np.arange(len(self))
+        if len(idx) > n:
+            idx = np.sort(np.random.default_rng(seed).choice(idx, n, replace=False))
+        return self.locate(idx)
+
     def check_layout(self, model_cfg) -> None:
         """Refuse a model whose input sizes differ from the stored ones."""
         want, have = DataLayout.of(model_cfg), self.manifest.model_layout

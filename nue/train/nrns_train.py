@@ -103,8 +103,7 @@ class DistanceData:
         s = self.sampling
         p_here = s.p_here if p_here is None else p_here
         idx = rng.integers(len(self.demos), size=n)
-        ep = np.searchsorted(self.demos.offsets, idx, side="right") - 1
-        t = idx - self.demos.offsets[ep]
+        ep, t = self.demos.locate(idx)
         ahead = rng.integers(1, s.horizon + 1, size=n)
         other = rng.random(n) >= p_here
         offsets, labels = np.zeros((n, 2)), np.zeros(n)
