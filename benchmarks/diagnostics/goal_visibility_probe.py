@@ -9,6 +9,9 @@ replays the recorded trajectory pose by pose (no policy runs) and measures at ea
 - ``overlap``: the fraction of the goal photo's content in the current view: every ``--stride``-th pixel of the goal
   photo, back-projected by its depth to the world, projected into the current camera, inside the frame and within
   10% of the current depth there (not hidden);
+- ``aligned overlap``: the same for the photo's content above the floor (the floor is seen from anywhere), counted
+  only while the robot faces within 45 degrees of the photo's heading (SIFT is not invariant to larger changes of
+  viewpoint), else 0;
 - what :class:`nue.policy.goal_pose.GoalPoseEstimator` (SLING's matcher, default settings) makes of the frame:
   a measurement, or why none (few matches, ambiguous, ...), with its matches.
 
@@ -38,12 +41,15 @@ from nue.sim.episodes import load_episodes
 from nue.sim.record import Trajectory
 
 
-def goal_points(env, stride: int) -> np.ndarray:
-    """World points (N, 3) of every ``stride``-th pixel of the goal photo that has a surface."""
+def goal_points(env, stride: int, floor: bool = True) -> np.ndarray:
+    """World points (N, 3) of every ``stride``-th pixel of the goal photo that has a surface (without the floor's,
+    those within 5 cm of the floor height, when ``floor`` is False)."""
     _, depth = env.renderer.render(env.episode.goal_pose, env.floor_z)
     pts = depth_to_points(depth, env.episode.goal_pose, env.task.camera, env.floor_z)[stride // 2::stride, stride // 2::stride]
     d = np.asarray(depth, dtype=np.float64).reshape(env.task.camera.height, env.task.camera.width)
     valid = d[stride // 2::stride, stride // 2::stride] > 0
+    if not floor:
+        valid &= pts[..., 2] > env.floor_z + 0.05
     return pts[valid]
 
 
@@ -70,13 +76,18 @@ def probe_episode(env, ep, record: dict, stride: int) -> dict:
     traj = Trajectory.decode(record["extra"]["trajectory"])
     env.reset(options={"episode": ep})
     pts = goal_points(env, stride)
+    walls = goal_points(env, stride, floor=False)
+    goal_yaw = float(env.episode.goal_pose[2])
     est = GoalPoseEstimator(env.task.camera, env.floor_z)
     est.set_goal(env.goal_image)
-    ov, measured, reasons, matches, errors = [], [], {}, [], []
+    ov, ov_aligned, measured, reasons, matches, errors = [], [], [], {}, [], []
     for t, pose in enumerate(traj.poses):
         rgb, depth = env.renderer.render(pose, env.floor_z)
         o = overlap(pts, pose, depth, env)
         ov.append(o)
+        # the photo's content above the floor, seen within 45 degrees of the photo's own heading
+        aligned = abs((pose[2] - goal_yaw + np.pi) % (2 * np.pi) - np.pi) <= np.pi / 4
+        ov_aligned.append(overlap(walls, pose, depth, env) if aligned and len(walls) else 0.0)
         if o < 0.05:  # nothing of the photo in view: the matcher would have nothing to find (not run, for speed)
             continue
         m = est.estimate(rgb, depth, pose)
@@ -87,6 +98,7 @@ def probe_episode(env, ep, record: dict, stride: int) -> dict:
             measured.append(t)
             errors.append(float(np.linalg.norm(m.xy - env.goal_xy)))
     ov_a = np.asarray(ov)
+    al = np.asarray(ov_aligned)
     lm = record["extra"].get("last_mile", {})
     return {
         "scene": record["scene"], "episode_id": record["episode_id"],
@@ -95,6 +107,9 @@ def probe_episode(env, ep, record: dict, stride: int) -> dict:
         "goal_points": int(len(pts)),
         "max_overlap": round(float(ov_a.max()), 3), "max_overlap_step": int(ov_a.argmax()),
         "steps_overlap_0.3": int((ov_a >= 0.3).sum()), "steps_overlap_0.5": int((ov_a >= 0.5).sum()),
+        "max_aligned_overlap": round(float(al.max()), 3), "steps_aligned_0.3": int((al >= 0.3).sum()),
+        "steps_aligned_0.5": int((al >= 0.5).sum()),
+        "distance_at_max_aligned": round(float(np.linalg.norm(traj.poses[int(al.argmax())][:2] - env.goal_xy)), 2),
         "measured_steps": measured[:50], "measured": len(measured),
         "measured_within_0.5m": int(sum(e <= 0.5 for e in errors)),
         "no_measurement_reasons": reasons,
@@ -128,11 +143,14 @@ def main() -> None:
             print(json.dumps(row), flush=True)
             rows.append(row)
     never = [r for r in rows if r["steps_overlap_0.3"] == 0]
+    never_aligned = [r for r in rows if r["steps_aligned_0.3"] == 0]
     looked_unmeasured = [r for r in rows if r["steps_overlap_0.3"] > 0 and r["measured"] == 0]
     measurable = [r for r in rows if r["measured"] > 0]
     summary = {
         "episodes": len(rows),
         "never_0.3_of_photo_in_view": len(never),
+        "never_0.3_of_photo_above_floor_in_view_within_45deg": len(never_aligned),
+        "median_max_aligned_overlap": round(float(np.median([r["max_aligned_overlap"] for r in rows])), 3) if rows else None,
         "in_view_but_no_measurement_on_any_frame": len(looked_unmeasured),
         "a_frame_gave_a_measurement": len(measurable),
         "of_which_sling_never_matched": sum(r["sling_first_match"] is None for r in measurable),
