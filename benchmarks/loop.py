@@ -1,4 +1,5 @@
-"""Agent-loop benchmark: ms per step of each part of the shared loop for NUE, FR and the expert.
+"""Agent-loop benchmark: ms per step of each part of the shared loop for NUE, NUE on the lean memory (``nue_lean``, when
+``results/lean/nue_lean.pt`` exists), FR and the expert.
 
 Writes ``benchmarks/results/loop.json``. The loop timed is :func:`nue.rollout.run_episode` itself (the
 one shared by collection, DAgger, evaluation and the demo) with the evaluation's coverage tracker as its
@@ -41,6 +42,9 @@ from nue.sim.env import make_env  # noqa: E402
 from nue.sim.episodes import load_episodes  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
+CHECKPOINTS = {"nue_lean": ROOT / "results" / "lean" / "nue_lean.pt"}
+"""Methods whose checkpoint is not ``checkpoints/<name>.pt``: ``nue_lean`` (NUE on the lean memory's 30 x 40 maps,
+issue 38; its checkpoint carries the ``lean`` memory preset)."""
 PARTS = ("render_maps", "memory_step", "prepare_input", "policy_forward", "act", "env_step", "coverage")
 """``act`` is the agent's whole decision (``prepare_input`` + forward + sampling for a policy, the
 expert's decision for the expert); ``policy_forward`` = ``act`` - ``prepare_input``."""
@@ -87,7 +91,7 @@ def run_method(name: str, env, episodes, steps: int, clock: Clock) -> dict:
     if name == "expert":
         agent, memory = ExpertAgent(), None
     else:
-        agent, memory = load_agent(ROOT / "checkpoints" / f"{name}.pt", env.task)
+        agent, memory = load_agent(CHECKPOINTS.get(name, ROOT / "checkpoints" / f"{name}.pt"), env.task)
     agent_t = TimedAgent(agent, clock)
     memory_t = TimedMemory(memory, clock) if memory is not None else None
     env_step = env.step
@@ -131,7 +135,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--steps", type=int, default=280, help="steps per method and repeat")
     ap.add_argument("--repeats", type=int, default=2, help="interleaved repeats of the three methods")
-    ap.add_argument("--methods", default="nue,fr,expert")
+    ap.add_argument("--methods", default="nue,nue_lean,fr,expert" if CHECKPOINTS["nue_lean"].exists() else "nue,fr,expert")
     args = ap.parse_args()
     torch.set_num_threads(1)
     load_before = os.getloadavg()
@@ -161,7 +165,7 @@ def main() -> None:
         "torch_threads": torch.get_num_threads(),
         "loadavg_before": load_before,
         "bare_env_step_ms": bare,
-        "targets_ms": {"nue": 16.0, "fr": 8.0},
+        "targets_ms": {"nue": 16.0, "nue_lean": 12.5, "fr": 8.0},
         "elapsed_s": elapsed,
         "methods": result,
     })

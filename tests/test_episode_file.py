@@ -304,6 +304,12 @@ def test_demo_set_reads_typed_manifests_and_refuses_mixed_collections(tmp_path):
     data.check_layout(get_model_config("nue"))
     with pytest.raises(DataError, match=r"a/manifest.json: data layout .* does not fit model 'nue'"):
         data.check_layout(get_model_config("nue").replace(cog_channels=32))
+    # a model that reads no maps trains on a collection made for other maps (the lean memory's), not other frames
+    with pytest.raises(DataError, match=r"does not fit model 'nue_lean'"):
+        data.check_layout(get_model_config("nue_lean"))
+    data.check_layout(get_model_config("fr").replace(map_height=30, map_width=40, cog_channels=32))
+    with pytest.raises(DataError, match=r"does not fit model 'fr'"):
+        data.check_layout(get_model_config("fr").replace(frame_height=60))
     raw = json.loads((b / "manifest.json").read_text())
     raw["memory"]["train_rays"] = 256
     (b / "manifest.json").write_text(json.dumps(raw))

@@ -148,3 +148,14 @@ OLDER_PRESETS = {
 def test_older_presets_are_unchanged(name):
     d = json.dumps(get_memory(name).to_dict(), sort_keys=True)
     assert hashlib.sha256(d.encode()).hexdigest() == OLDER_PRESETS[name]
+
+
+def test_lean_model_presets_read_the_lean_memory_maps():
+    """Every Table I model that reads maps has a ``_lean`` twin sized for the lean memory, otherwise identical."""
+    from nue.policy.config import ABLATION_PRESETS, get_model_config
+
+    lean = get_memory("lean")
+    for m in ("nue", *ABLATION_PRESETS):
+        twin, base = get_model_config(f"{m}_lean"), get_model_config(m)
+        assert twin.map_size == (lean.map_height, lean.map_width) == (30, 40)
+        assert twin.replace(name=m, map_height=base.map_height, map_width=base.map_width) == base

@@ -300,9 +300,6 @@ MODEL_PRESETS: dict[str, ModelConfig] = {
     "nue_pano_gru": _NUE.replace(name="nue_pano_gru", panorama_dim=32, gru_dim=256),
     "nue_goal": _NUE.replace(name="nue_goal", goal_head=True),
     "nue_match": _NUE.replace(name="nue_match", goal_head=True, goal_match=32),
-    "nue_lean": _NUE.replace(name="nue_lean", map_height=30, map_width=40),
-    "abl_at_cbam_lean": _NUE.replace(name="abl_at_cbam_lean", use_uncertainty=False, use_aux=True, use_cbam=True,
-                                     map_height=30, map_width=40),
     "abl_none": _NUE.replace(name="abl_none", use_uncertainty=False, use_aux=False, use_cbam=False),
     "abl_fu": _NUE.replace(name="abl_fu", use_uncertainty=True, use_aux=False, use_cbam=False),
     "abl_at_cbam": _NUE.replace(name="abl_at_cbam", use_uncertainty=False, use_aux=True, use_cbam=True),
@@ -317,12 +314,18 @@ MODEL_PRESETS: dict[str, ModelConfig] = {
     "vgm": _NUE.replace(name="vgm", kind="vgm", use_uncertainty=False, use_aux=False, use_cbam=False,
                         goal_in_perception=False),
 }
-"""Named model configs. The five ``abl_*`` rows and ``nue`` are paper Table I's ablation block. ``nue_lean`` and
-``abl_at_cbam_lean`` (NUE and its no-f_u ablation) read the ``lean`` memory preset's 30 x 40 maps (collect with
-``--memory lean``)."""
-
 ABLATION_PRESETS: tuple[str, ...] = ("abl_none", "abl_fu", "abl_at_cbam", "abl_fu_cbam", "abl_fu_at")
 """The paper's five ablation rows, in Table I order."""
+
+LEAN_MAP_SIZE: tuple[int, int] = (30, 40)
+"""(h, w) of the ``lean`` memory preset's maps (:mod:`nue.nerf.config`)."""
+
+MODEL_PRESETS.update({f"{m}_lean": MODEL_PRESETS[m].replace(name=f"{m}_lean", map_height=LEAN_MAP_SIZE[0],
+                                                             map_width=LEAN_MAP_SIZE[1])
+                      for m in ("nue", *ABLATION_PRESETS)})
+"""Named model configs. The five ``abl_*`` rows and ``nue`` are paper Table I's ablation block. Each of them also has
+a ``<name>_lean`` twin that reads the ``lean`` memory preset's 30 x 40 maps (collect with ``--memory lean``; issue
+38); the baselines read no maps and train on any collection."""
 
 
 def get_model_config(name: str | ModelConfig) -> ModelConfig:

@@ -119,8 +119,12 @@ class DemoSet:
         return self.locate(idx)
 
     def check_layout(self, model_cfg) -> None:
-        """Refuse a model whose input sizes differ from the stored ones."""
+        """Refuse a model whose input sizes differ from the stored ones. A model that reads no memory maps (FR,
+        Nav-A3C, NRNS, VGM) is checked on the frame only, so it trains on a collection made for any map size (e.g.
+        the ``lean`` memory's 30 x 40)."""
         want, have = DataLayout.of(model_cfg), self.manifest.model_layout
+        if not model_cfg.uses_memory_maps:
+            want = dataclasses.replace(want, map_size=have.map_size, cog_channels=have.cog_channels)
         if want != have:
             raise DataError(manifest_path(self.root), f"data layout {have.to_dict()} does not fit model "
                                                       f"{model_cfg.name!r} ({want.to_dict()})")
