@@ -290,10 +290,22 @@ V8 = V7.replace(name="v8", last_mile=("nue", "fr", "nav_a3c"))
 """v7 with the SLING rows of Table I (issue 40): NUE (every seed), FR (every seed) and Nav-A3C also run wrapped in the
 last-mile module on every evaluation set."""
 
+TABLE_I_MODELS_LEAN: tuple[str, ...] = tuple(f"{m}_lean" for m in ("nue", *ABLATION_PRESETS)) + ("fr", "nav_a3c")
+"""Table I's trained rows on the ``lean`` memory: the ``_lean`` twins of NUE and its ablations (30 x 40 maps), FR and
+Nav-A3C (which read no maps)."""
+
+V9 = V8.replace(name="v9", memory="lean", models=TABLE_I_MODELS_LEAN,
+                train_seeds=(("nue_lean", 3), ("abl_at_cbam_lean", 3), ("abl_none_lean", 3), ("fr", 3), ("nav_a3c", 3)),
+                swap_maps=("nue_lean",), last_mile=("nue_lean", "fr", "nav_a3c"))
+"""v8 on the ``lean`` memory (issue 38: 1.7x less per NUE episode step, 1.4x faster NUE training), with 3 training seeds
+for NUE, the no-f_u and all-off ablations, FR and Nav-A3C. A candidate, not the default: its NUE rows are named
+``nue_lean`` etc. (results/lean/README.md has the comparison with ``fast`` that decides it)."""
+
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
     "v7": V7,
     "v8": V8,
+    "v9": V9,
     "v5": V5,
     "v3": V3,
     "quick": V3.replace(

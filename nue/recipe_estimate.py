@@ -47,6 +47,15 @@ class CostModel:
     control replays maps recorded along the expert's run of another episode, so its agent neither renders nor
     trains a memory. ``sling`` is what SLING's last-mile wrapper adds to its model's episode (SIFT matching every 4th
     step at ~22 ms, the depth map every 2nd at ~2 ms: ~7 ms a step, ~300 steps)."""
+    memory_speedup: tuple[tuple[str, float], ...] = (("lean", 1.70),)
+    """Per memory preset other than ``fast``: how much less an episode step of a model that reads the memory's maps
+    costs (evaluation and closed-loop selection), a ratio to ``fast``. ``lean``: ``benchmarks/loop.py`` with
+    ``results/lean/nue_lean.pt`` beside ``checkpoints/nue.pt``, interleaved in one run, sum of the per-part medians
+    36.95 against 21.74 ms (2026-12-05, load average ~2.3 on 2 cores)."""
+    map_train_speedup: tuple[tuple[str, float], ...] = (("lean", 1.37),)
+    """Per memory preset other than ``fast``: training throughput of a model that reads its (smaller) maps, a ratio
+    to ``fast``'s. ``lean``: ``benchmarks/train.py``, NUE on 30 x 40 against 45 x 60 maps, one thread, bf16 (308
+    against 225 samples/s in one run, 2026-12-05, loaded)."""
     train_overhead_s: float = 10.0
     """Per model: loading the demonstrations, building the model, checkpoints, seconds."""
     eval_overhead_s: float = 5.0
@@ -72,6 +81,12 @@ class StageEstimate:
 def _kind_cost(table: tuple[tuple[str, float], ...], model: str) -> float:
     costs = dict(table)
     return costs[model] if model in costs else costs[get_model_config(model).kind]
+
+
+def _memory_factor(table: tuple[tuple[str, float], ...], model: str, memory: str) -> float:
+    """The speed-up ``table`` gives ``model`` under the recipe's memory preset (1 for ``fast``, an unlisted preset or
+    a model that reads no maps)."""
+    return dict(table).get(memory, 1.0) if get_model_config(model).uses_memory_maps else 1.0
 
 
 def _makespan(durations: list[float], slots: int) -> float:
@@ -123,11 +138,13 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
         if recipe.train_minutes > 0:
             t = 60 * recipe.train_minutes
         else:
-            rate = _kind_cost(cost.samples_per_s, m) * (_kind_cost(cost.compiled_speedup, m) if compiled else 1.0)
+            rate = (_kind_cost(cost.samples_per_s, m) * (_kind_cost(cost.compiled_speedup, m) if compiled else 1.0)
+                    * _memory_factor(cost.map_train_speedup, m, recipe.memory))
             t = recipe.train_steps(m) * recipe.samples_per_step(m) / rate
         rounds = 1 + recipe.dagger_rounds
         rollouts = recipe.dagger_rounds * n_eps * length * cost.collect_s_per_step * 1.2
-        jobs.append(cost.train_overhead_s + rounds * t + rollouts + select_eps * recipe.select_candidates * _kind_cost(cost.select_s_per_episode, m))
+        select_s = _kind_cost(cost.select_s_per_episode, m) / _memory_factor(cost.memory_speedup, m, recipe.memory)
+        jobs.append(cost.train_overhead_s + rounds * t + rollouts + select_eps * recipe.select_candidates * select_s)
     select = (f" + closed-loop selection ({recipe.select_candidates} x 21 episodes)" if select_eps else "")
     budget = (f"{recipe.train_minutes:g} min" if recipe.train_minutes > 0
               else f"{recipe.train_samples:,} samples" if recipe.train_samples > 0 else "its steps")
@@ -137,8 +154,13 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
                              f"{f' x {1 + recipe.dagger_rounds} rounds' if recipe.dagger_rounds else ''}, {side}"))
     scale = min(1.0, recipe.eval_max_steps / 800) if recipe.eval_max_steps else 1.0
     swap = len(recipe.training_runs(recipe.swap_maps))
+    def episode_s(model: str) -> float:
+        """Evaluation seconds per episode of one model under the recipe's memory."""
+        return _kind_cost(cost.eval_s_per_episode, model) / _memory_factor(cost.memory_speedup, model, recipe.memory)
+
     for name, n in episode_counts(recipe).items():
-        per_ep = sum(_kind_cost(cost.eval_s_per_episode, m) for m in (*(r.model for r in all_runs), *recipe.experts))
+        per_ep = (sum(episode_s(r.model) for r in all_runs)
+                  + sum(_kind_cost(cost.eval_s_per_episode, m) for m in recipe.experts))
         methods = len(all_runs) + len(recipe.experts)
         out.append(StageEstimate(f"eval/{name}", (n * per_ep * scale + methods * cost.eval_overhead_s) / w,
                                  f"{n} episodes x {methods} methods / {w} worker(s)"))
@@ -148,8 +170,7 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
                                      f"{n} episodes x {swap} {'model(s)' if swap == len(recipe.swap_maps) else 'runs'}, swapped maps"))
         if recipe.last_mile:
             wrapped = recipe.training_runs(recipe.last_mile)
-            per_ep = sum(_kind_cost(cost.eval_s_per_episode, r.model) + dict(cost.eval_s_per_episode)["sling"]
-                         for r in wrapped)
+            per_ep = sum(episode_s(r.model) + dict(cost.eval_s_per_episode)["sling"] for r in wrapped)
             out.append(StageEstimate(f"eval/{name}+sling", (n * per_ep * scale + len(wrapped) * cost.eval_overhead_s) / w,
                                      f"{n} episodes x {len(wrapped)} runs with SLING's last mile / {w} worker(s)"))
     out.append(StageEstimate("report", cost.report_s, "tables, coverage plot, RESULTS.md"))

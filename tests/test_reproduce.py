@@ -394,6 +394,24 @@ def test_the_sling_rows_are_a_stage_of_their_own_with_their_cost():
         v7.replace(last_mile=("vgm",))
 
 
+def test_the_lean_memory_shortens_only_the_map_reading_models_by_the_measured_factors():
+    """v9 (the lean memory): a NUE-family episode costs 13.3 / 1.70 s, its training 256,000 / (98 x 1.37) s and its
+    selection episode 11.5 / 1.70 s; FR, Nav-A3C and the experts cost what they cost under ``fast``."""
+    from nue.recipe import CostModel
+
+    v8, v9, c = get_recipe("v8"), get_recipe("v9"), CostModel()
+    assert v9.memory == "lean" and all(m.endswith("_lean") or m in ("fr", "nav_a3c") for m in v9.models)
+    assert dict(c.memory_speedup)["lean"] == 1.70 and dict(c.map_train_speedup)["lean"] == 1.37
+    one = {s.stage: s for s in estimate(v9.replace(train_seeds=(), last_mile=(), swap_maps=()), 1)}
+    ref = {s.stage: s for s in estimate(v8.replace(train_seeds=(), last_mile=(), swap_maps=()), 1)}
+    nue_eval = 252 * 6 * (13.3 - 13.3 / 1.70)
+    assert ref["eval/val252"].seconds - one["eval/val252"].seconds == pytest.approx(nue_eval)
+    nue_train = 6 * (256_000 / 98.0 * (1 - 1 / 1.37) + 2 * 21 * (11.5 - 11.5 / 1.70))
+    assert ref["train"].seconds - one["train"].seconds == pytest.approx(nue_train)
+    two = {s.stage: s for s in estimate(v9, 2)}
+    assert "18 runs (models x seeds)" in two["train"].detail and "9 runs with SLING" in two["eval/val252+sling"].detail
+
+
 def test_a_run_started_before_train_seeds_existed_resumes_and_refuses_seeds(tmp_path):
     """A recipe.json written before a field was added (here ``train_seeds``) counts it at its default: the same
     recipe resumes, one with seeds is refused."""
