@@ -171,7 +171,7 @@ def test_v3_is_the_documented_recipe_for_every_model():
     with pytest.raises(ConfigError):
         v3.replace(models=("nue", "no_such_model"))
     with pytest.raises(ConfigError):
-        get_recipe("v9")
+        get_recipe("no_such_recipe")
 
 
 @pytest.mark.parametrize("model", ["nue", "fr", "nav_a3c", "abl_none"])
