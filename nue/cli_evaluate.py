@@ -92,22 +92,45 @@ def eval_cmd(
                                      "or sling+name=path (the checkpoint with the last-mile wrapper); repeatable."),
     out: Path = typer.Option(Path("results/records.jsonl"), help="JSON-lines file the records are appended to."),
     cfg: EvalConfig = EVAL,
+    last_mile: Optional[Path] = typer.Option(None, "--last-mile", help="JSON file of the sling+ wrapper's settings "
+                                             "(LastMileConfig, nested as records store them; a key left out keeps "
+                                             "its default), e.g. {\"pose\": {\"contrast_threshold\": 0.01}}."),
     workers: int = WORKERS,
     ray_address: Optional[str] = RAY_ADDRESS,
 ):
     """Evaluate checkpoints on the fixed validation episodes (resumes if rerun)."""
+    import dataclasses
+
     from nue.evaluate.metrics import aggregate, format_table
     from nue.evaluate.report import load_records
     from nue.evaluate.runner import run_eval
 
     A.positive("--workers", workers)
     check_output_file(out, "the records file")
+    if last_mile is not None:
+        cfg = dataclasses.replace(cfg, last_mile=_read_last_mile(last_mile))
     skipped: list = []
     run_eval(method, out, cfg, workers=workers, ray_address=ray_address, skipped=skipped)
     _echo_episode_checks(skipped)
     records = load_records(out, drop_duplicates=True, on_dropped=_echo_dropped)  # duplicates of an older writer
     for name in sorted({r.method for r in records}):
         typer.echo(f"## {name}\n" + format_table(aggregate([r for r in records if r.method == name])))
+
+
+def _read_last_mile(path: Path):
+    """``--last-mile``: the wrapper's settings from a JSON file (DataError / ConfigError naming the file)."""
+    import json
+
+    from nue.errors import DataError
+    from nue.policy.last_mile import LastMileConfig
+
+    try:
+        data = json.loads(path.read_text())
+    except OSError as e:
+        raise DataError(path, f"cannot read the last-mile settings: {e.strerror or e}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise DataError(path, f"not a JSON file of last-mile settings: {e}") from None
+    return LastMileConfig.from_dict(data, str(path))
 
 
 EXPLORE = ConfigOptions(

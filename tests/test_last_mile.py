@@ -253,10 +253,48 @@ def test_nue_eval_runs_a_sling_row_and_refuses_other_wrapper_settings_on_resume(
     assert {"first_match_step", "first_accept_step", "events", "control_steps", "estimate_error",
             "ms_per_step"} <= set(lm)
     assert rec["extra"]["settings"]["last_mile"] == LastMileConfig().to_dict()
+    # --last-mile FILE: other settings, stored in the record; the same file's resume is refused
+    settings = tmp_path / "lm.json"
+    settings.write_text(json.dumps({"pose": {"contrast_threshold": 0.01}, "match_every": 3}))
+    out2 = tmp_path / "records2.jsonl"
+    res = nue_here("eval", "-c", f"sling+fr={ckpt}", "--out", out2, "--episodes-dir", episodes_dir,
+                   "--scenes-root", FIXTURES, "--max-steps", 25, "--last-mile", settings)
+    assert res.returncode == 0, res.stderr
+    (rec2,) = [json.loads(line) for line in out2.read_text().splitlines()]
+    stored = rec2["extra"]["settings"]["last_mile"]
+    assert stored["pose"]["contrast_threshold"] == 0.01 and stored["match_every"] == 3
+    assert stored["tracker"] == LastMileConfig().to_dict()["tracker"]
+    res = nue_here("eval", "-c", f"sling+fr={ckpt}", "--out", out, "--episodes-dir", episodes_dir,
+                   "--scenes-root", FIXTURES, "--max-steps", 25, "--last-mile", settings)
+    assert res.returncode == 2 and "last_mile" in res.stderr and "Traceback" not in res.stderr
     other = EvalConfig(episodes_dir=str(episodes_dir), scenes_root=str(FIXTURES), max_steps=25,
                        last_mile=LastMileConfig(match_every=7))
     with pytest.raises(DataError, match="last_mile"):
         run_eval([f"sling+fr={ckpt}"], out, other, progress=False)
+
+
+def test_last_mile_settings_round_trip_and_bad_ones_are_named():
+    from nue.errors import ConfigError
+
+    cfg = LastMileConfig(match_every=3, reject_inside_success=True)
+    assert LastMileConfig.from_dict(cfg.to_dict()) == cfg
+    assert LastMileConfig.from_dict({"pose": {"min_inliers": 8}}).pose.min_inliers == 8
+    for bad, words in [({"pose": {"contrast": 0.01}}, "pose.contrast"), ({"match_every": "4"}, "match_every"),
+                       ({"match_every": 2.5}, "integer"), ({"pose": 3}, "pose: expected an object"),
+                       ({"locator": "orb"}, "locator")]:
+        with pytest.raises(ConfigError, match=words) as e:
+            LastMileConfig.from_dict(bad, "lm.json")
+        assert str(e.value).startswith("lm.json: ")
+
+
+def test_a_bad_last_mile_file_exits_2_naming_it(tmp_path):
+    for text, words in [("{", "not a JSON file"), ('{"pose": {"contrast": 1}}', "pose.contrast")]:
+        f = tmp_path / "lm.json"
+        f.write_text(text)
+        res = nue_here("eval", "-c", "expert", "--out", tmp_path / "r.jsonl", "--last-mile", f)
+        assert res.returncode == 2 and str(f) in res.stderr and words in res.stderr and "Traceback" not in res.stderr
+    res = nue_here("eval", "-c", "expert", "--out", tmp_path / "r.jsonl", "--last-mile", tmp_path / "none.json")
+    assert res.returncode == 2 and "none.json" in res.stderr
 
 
 def test_a_sling_spec_without_a_checkpoint_exits_2(tmp_path):

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from nue.errors import ConfigError
 from nue.policy.commit import LearnedGoalLocator, LearnedLocatorConfig
 from nue.policy.goal_pose import GoalPoseConfig, GoalPoseEstimator, GoalTracker, TrackerConfig
 from nue.policy.protocols import tell_executed
@@ -91,6 +92,41 @@ class LastMileConfig:
 
     def replace(self, **changes) -> "LastMileConfig":
         return dataclasses.replace(self, **changes)
+
+    @classmethod
+    def from_dict(cls, data: Any, where: str = "last-mile settings") -> "LastMileConfig":
+        """The config from :meth:`to_dict`'s nested form; keys left out keep their defaults (so ``{"pose":
+        {"contrast_threshold": 0.01}}`` changes one setting). An unknown key or a value of the wrong kind is a
+        :class:`~nue.errors.ConfigError` naming ``where`` and the key."""
+        return _build(cls, data, where, "")
+
+
+def _build(cls, data: Any, where: str, prefix: str):
+    if not isinstance(data, dict):
+        raise ConfigError(where, f"{prefix.rstrip('.') or 'the settings'}: expected an object of settings, got {data!r}")
+    defaults = cls()
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(where, f"unknown setting(s) {', '.join(prefix + k for k in unknown)} "
+                                 f"(known: {', '.join(sorted(names))})")
+    kwargs = {}
+    for key, value in data.items():
+        default = getattr(defaults, key)
+        if dataclasses.is_dataclass(default):
+            kwargs[key] = _build(type(default), value, where, f"{prefix}{key}.")
+        elif isinstance(default, bool) != isinstance(value, bool) or (
+                isinstance(default, (int, float)) and not isinstance(value, (int, float))) or (
+                isinstance(default, str) and not isinstance(value, str)):
+            raise ConfigError(where, f"{prefix}{key}: expected a value like {default!r}, got {value!r}")
+        elif isinstance(default, int) and not isinstance(default, bool) and not float(value).is_integer():
+            raise ConfigError(where, f"{prefix}{key}: expected an integer, got {value!r}")
+        else:
+            kwargs[key] = type(default)(value) if isinstance(default, (int, float)) else value
+    try:
+        return cls(**kwargs)
+    except (ValueError, TypeError) as e:
+        raise ConfigError(where, f"{prefix.rstrip('.') or 'settings'}: {e}") from None
 
 
 LOCATORS = ("sift", "learned")
