@@ -51,7 +51,8 @@ def collect_config(recipe: Recipe, device: str = "cpu") -> CollectConfig:
 def train_config(recipe: Recipe, run: str, folders: "RunFolders", device: str = "cpu", compile: bool = False) -> TrainConfig:
     """``nue train`` of one training run under a recipe (budget, batch, precision, map dropout, selection): ``run`` is
     a model (its seed 0) or one of its seeds (``nue@s1``, :meth:`~nue.recipe.Recipe.training_run`), which sets the
-    run folder and the training seed; ``compile`` is how it runs (``nue train --compile``), not part of the recipe."""
+    run folder and the training seed. NRNS's distance network has no actions to run in closed loop: it is always
+    selected by held-out distance error (``select="accuracy"``); ``compile`` is how it runs (``nue train --compile``), not part of the recipe."""
     r = recipe.training_run(run)
     model = r.model
     cfg = get_model_config(model)
@@ -60,7 +61,7 @@ def train_config(recipe: Recipe, run: str, folders: "RunFolders", device: str = 
         batch_size=recipe.batch_for(model), seq_len=recipe.seq_len, lr=recipe.lr, warmup=recipe.warmup,
         time_budget_s=60 * recipe.train_minutes, budget_clock=recipe.budget_clock, eval_every=recipe.step_plan(model).eval_every, seed=r.seed,
         device=device, precision=recipe.precision, compile=compile, map_dropout=recipe.map_dropout if cfg.uses_memory_maps else 0.0,
-        select=recipe.select, select_episodes=str(folders.episodes_root / "select"),
+        select="accuracy" if cfg.kind == "nrns" else recipe.select, select_episodes=str(folders.episodes_root / "select"),
         select_candidates=recipe.select_candidates, select_scenes_root=str(folders.scenes_root))
 
 

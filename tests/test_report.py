@@ -436,3 +436,15 @@ def test_sling_rows_are_labelled_and_carry_the_paper_s_sling_totals():
     assert "SLING+OVRL 56.64% SR, SPL 0.379" in note and "SLING+DDPPO 33.50% SR" in note  # paper_table1.csv's totals
     assert R.sling_notes(rows[:1]) == ""
     assert R.method_label("sling+nue@s1") == "SLING + NUE @s1" and R.canonical_method("SLING + FR") == "sling+fr"
+
+
+def test_memory_baseline_rows_carry_the_paper_s_rows_and_the_msm_note():
+    from types import SimpleNamespace
+
+    paper = R.paper_table()
+    assert paper["vgm"]["total"][0] == 41.37 and paper["nrns"]["total"][0] == 30.73  # paper_table1.csv, VGM / NRNS
+    assert R.method_label("nrns@s2") == "NRNS @s2" and R.canonical_method("VGM") == "vgm"
+    rows = [SimpleNamespace(method="nue"), SimpleNamespace(method="vgm@s1")]
+    note = R.msm_note(rows)
+    assert "not identified" in note and "30.50% SR, SPL 0.167" in note and "docs/msm.md" in note
+    assert R.msm_note(rows[:1]) == ""

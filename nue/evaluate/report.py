@@ -256,7 +256,25 @@ def seed_notes(rows: Sequence[TableRow]) -> str:
     """:data:`SEED_NOTES` and the *Training seeds* table (:func:`format_seeds_markdown`) when some row has several
     seeds, with a blank line before; then :func:`sling_notes`; '' when neither applies (such a table is unchanged)."""
     seeds = format_seeds_markdown(rows)
-    return (f"\n{SEED_NOTES}\n\nTraining seeds (each run's totals):\n\n{seeds}" if seeds else "") + sling_notes(rows)
+    return ((f"\n{SEED_NOTES}\n\nTraining seeds (each run's totals):\n\n{seeds}" if seeds else "") + sling_notes(rows)
+            + msm_note(rows))
+
+
+MEMORY_BASELINES: tuple[str, ...] = ("vgm", "nrns")
+"""The paper's memory baselines with a row of ours (MSM has none: :func:`msm_note`)."""
+
+
+def msm_note(rows: Sequence[TableRow], paper=None) -> str:
+    """When some row is a memory baseline (VGM, NRNS): the paper's MSM row has no counterpart here, because the work
+    could not be identified (docs/msm.md), with its total; else ''."""
+    if not any(split_seed(r.method)[0] in MEMORY_BASELINES for r in rows):
+        return ""
+    paper = paper_table() if paper is None else paper
+    total = paper.get("MSM", {}).get("total")
+    theirs = f" (the paper's total: {total[0]:.2f}% SR, SPL {total[1]:.3f})" if total else ""
+    return ("\n*MSM* (the paper's third memory baseline, its ref. 62, \"Multi-Storage Memory\"): not identified, so it "
+            f"has no row of ours{theirs}; what was searched is in docs/msm.md. How VGM and NRNS are built and "
+            "adapted to one 90-degree RGB-D camera: docs/vgm.md, docs/nrns.md.\n")
 
 
 def sling_notes(rows: Sequence[TableRow], paper=None) -> str:

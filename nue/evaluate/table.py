@@ -42,6 +42,8 @@ class MethodInfo:
 METHODS: tuple[MethodInfo, ...] = (
     MethodInfo("fr", "FR", "FR"),
     MethodInfo("nav_a3c", "Nav-A3C", "Nav-A3C"),
+    MethodInfo("vgm", "VGM", "VGM"),
+    MethodInfo("nrns", "NRNS", "NRNS"),
     MethodInfo("abl_none", "f_u=off AT=off CBAM=off", "ablation f_u=off AT=off CBAM=off"),
     MethodInfo("abl_fu", "f_u=on AT=off CBAM=off", "ablation f_u=on AT=off CBAM=off"),
     MethodInfo("abl_at_cbam", "f_u=off AT=on CBAM=on", "ablation f_u=off AT=on CBAM=on"),
