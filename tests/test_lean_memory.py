@@ -155,7 +155,13 @@ def test_lean_model_presets_read_the_lean_memory_maps():
     from nue.policy.config import ABLATION_PRESETS, get_model_config
 
     lean = get_memory("lean")
-    for m in ("nue", *ABLATION_PRESETS):
+    for m in ("nue", "nue_gru", "nue_pano", *ABLATION_PRESETS):
         twin, base = get_model_config(f"{m}_lean"), get_model_config(m)
         assert twin.map_size == (lean.map_height, lean.map_width) == (30, 40)
         assert twin.replace(name=m, map_height=base.map_height, map_width=base.map_width) == base
+
+
+def test_lean_pano_is_lean_with_fast_pano_s_panorama():
+    pano, lean, fast_pano = get_memory("lean_pano"), get_memory("lean"), get_memory("fast_pano")
+    assert pano.panorama_headings == fast_pano.panorama_headings == 8 and lean.panorama_headings == 0
+    assert pano.replace(name="lean", panorama_headings=0) == lean

@@ -165,6 +165,8 @@ maps), maps at 30 x 40 instead of 45 x 60, and a larger grid step (0.75, colour 
 frame learns about as fast as two did early on. Measured against ``fast`` in one run: update ~2.4x, maps ~2.2x
 cheaper; PSNR 2-3 dB lower in the first 30 steps and ~1.5 dB lower at step 100, AUROC of I_u within ~0.035.
 A policy trained on ``fast``'s 45 x 60 maps needs retraining on its maps."""
+MEMORY_PRESETS["lean_pano"] = MEMORY_PRESETS["lean"].replace(name="lean_pano", panorama_headings=8)
+"""``lean`` with ``fast_pano``'s 8-heading panorama of I_u (the ``nue_pano_lean`` model's collection)."""
 
 
 def get_memory(name: str | MemoryConfig | dict) -> MemoryConfig:

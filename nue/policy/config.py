@@ -322,10 +322,10 @@ LEAN_MAP_SIZE: tuple[int, int] = (30, 40)
 
 MODEL_PRESETS.update({f"{m}_lean": MODEL_PRESETS[m].replace(name=f"{m}_lean", map_height=LEAN_MAP_SIZE[0],
                                                              map_width=LEAN_MAP_SIZE[1])
-                      for m in ("nue", "nue_gru", *ABLATION_PRESETS)})
+                      for m in ("nue", "nue_gru", "nue_pano", *ABLATION_PRESETS)})
 """Named model configs. The five ``abl_*`` rows and ``nue`` are paper Table I's ablation block. Each of them, and
-``nue_gru``, also has a ``<name>_lean`` twin that reads the ``lean`` memory preset's 30 x 40 maps (collect with ``--memory lean``; issue
-38); the baselines read no maps and train on any collection."""
+``nue_gru`` and ``nue_pano``, also has a ``<name>_lean`` twin that reads the ``lean`` memory preset's 30 x 40 maps
+(collect with ``--memory lean``, or ``lean_pano`` for ``nue_pano_lean``; issue 38); the baselines read no maps and train on any collection."""
 
 
 def get_model_config(name: str | ModelConfig) -> ModelConfig:
