@@ -174,6 +174,8 @@ def report_cmd(
     explore: list[str] = typer.Option([], help="NAME=FILE: `nue explore` records from set NAME's starts, a section of "
                                       "RESULTS.md; repeatable."),
     drop_duplicates: bool = typer.Option(False, help=DROP_HELP),
+    reference: str = typer.Option("nue", help="Method the report folder's paired differences are to (e.g. nue_lean, "
+                                  "to compare candidates with a variant of NUE); RESULTS.md always compares to NUE."),
     generalisation: str = typer.Option("", help="Reference set (e.g. val252: the name of RECORDS or of a --set): write "
                                        "OUT/generalisation.md, and a RESULTS.md section, with each model's SR / SPL "
                                        "on it and on every held-out style set given (val_plain, val_pale), the drop, "
@@ -186,6 +188,7 @@ def report_cmd(
     from nue.errors import ConfigError
     from nue.evaluate.report import load_records, write_report
     from nue.evaluate.results_md import render_results_md
+    from nue.evaluate.table import canonical_method, split_seed
     from nue.viz.coverage import write_coverage_figure
 
     check_output_dir(out, "the report folder")
@@ -207,9 +210,12 @@ def report_cmd(
         if not sep or not set_name or not path:
             raise ConfigError("--explore", f"expected NAME=FILE, got {spec!r}")
         explored[set_name] = load_records(Path(path), **read)
-    paths = {**write_report(recs, out, task=task), **write_coverage_figure(recs, out)}
+    if reference != "nue" and not any(canonical_method(split_seed(r.method)[0]) == canonical_method(reference)
+                                      for r in recs):
+        raise ConfigError("--reference", f"no record of method {reference!r} in {', '.join(map(str, records))}")
+    paths = {**write_report(recs, out, task=task, compare_to=reference), **write_coverage_figure(recs, out)}
     for set_name, set_recs in sets.items():
-        write_report(set_recs, out / set_name, task=task)
+        write_report(set_recs, out / set_name, task=task, compare_to=reference)
         write_coverage_figure(set_recs, out / set_name)
     typer.echo((out / "table.md").read_text() if (out / "table.md").is_file() else "")
     if generalisation:

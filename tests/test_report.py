@@ -448,3 +448,19 @@ def test_memory_baseline_rows_carry_the_paper_s_rows_and_the_msm_note():
     note = R.msm_note(rows)
     assert "not identified" in note and "30.50% SR, SPL 0.167" in note and "docs/msm.md" in note
     assert R.msm_note(rows[:1]) == ""
+
+
+def test_report_reference_compares_candidates_to_a_variant_of_nue(tmp_path, capsys):
+    """``nue report --reference nue_lean``: paired differences to it (NUE won 2 of 4 where nue_lean won 0: +50
+    points); a reference with no records is a one-line error."""
+    from tests.test_bad_input import run_cli
+
+    recs = hand_records() + [rec(i, d, False, method="nue_lean") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
+    f = tmp_path / "r.jsonl"
+    f.write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs))
+    code, out, err = run_cli(capsys, "report", f, "--reference", "nue_lean", "--out", tmp_path / "rep")
+    assert code == 0, err
+    table = (tmp_path / "rep" / "table.md").read_text()
+    assert "## Paired differences to nue_lean" in table and "| NUE (full) | 4 | +50.0 [" in table
+    code, out, err = run_cli(capsys, "report", f, "--reference", "vgm", "--out", tmp_path / "rep2")
+    assert code == 2 and "--reference" in err and "'vgm'" in err and str(f) in err

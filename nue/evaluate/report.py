@@ -336,9 +336,10 @@ HANDOFF_NOTES = (
 )
 
 
-def handoff_markdown(records: Sequence[EpisodeRecord]) -> str:
+def handoff_markdown(records: Sequence[EpisodeRecord], reference: str = "nue") -> str:
     """The hand-off table (:func:`nue.evaluate.handoff.format_handoff_markdown`) per method of the table (canonical
-    names, table order) with its notes; '' when no record carries a hand-off."""
+    names, table order) with its notes, and the failure classes' paired differences to ``reference``; '' when no
+    record carries a hand-off."""
     from nue.evaluate.handoff import format_handoff_markdown, format_outcome_differences, handoff_summaries, outcome_differences
 
     key = lambda r: canonical_method(r.method)  # noqa: E731
@@ -348,30 +349,36 @@ def handoff_markdown(records: Sequence[EpisodeRecord]) -> str:
     ordered = {k: summaries[k] for k in order_methods(summaries)}
     labels = {k: method_label(k) for k in ordered}
     text = f"{format_handoff_markdown(ordered, labels)}\n{HANDOFF_NOTES}\n"
-    diffs = outcome_differences(records, method_of=key)
+    diffs = outcome_differences(records, reference=canonical_method(reference), method_of=key)
     if diffs:
         rank = {k: i for i, k in enumerate(order_methods({d.method for d in diffs}))}
         diffs = sorted(diffs, key=lambda d: rank[d.method])
-        text += ("\nPaired differences of the failure classes to NUE (the share of episodes, NUE's minus the method's; "
-                 "below 0 = NUE fails that way less often; 95% paired bootstrap over the episodes both ran):\n\n"
+        ref = "NUE" if canonical_method(reference) == "nue" else method_label(canonical_method(reference))
+        text += (f"\nPaired differences of the failure classes to {ref} (the share of episodes, {ref}'s minus the "
+                 f"method's; below 0 = {ref} fails that way less often; 95% paired bootstrap over the episodes both "
+                 "ran):\n\n"
                  f"{format_outcome_differences(diffs, labels)}")
     return text
 
 
-def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = True, task: str = "paper") -> dict[str, Path]:
+def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = True, task: str = "paper",
+                 compare_to: str = "nue") -> dict[str, Path]:
     """Write ``table.md`` (table, counts, paired differences, closed-loop diagnostics), ``table.csv`` and
     ``table.tex``.
 
-    Returns ``{name: path}``. ``reference``: interleave the paper's rows; ``task``: the preset of the action ids.
+    Returns ``{name: path}``. ``reference``: interleave the paper's rows; ``task``: the preset of the action ids;
+    ``compare_to``: the method the paired differences are to (NUE; a candidate such as ``nue_lean`` to compare
+    variants of it).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rows = build_table(records)
     paper = paper_table() if reference else None
     md = (f"# Table I\n\n{format_markdown(rows, paper)}\n{NOTES}\n{seed_notes(rows)}\n## Episodes per cell (successes / episodes)\n\n"
-          f"{format_counts_markdown(rows)}\n{unreachable_markdown(records)}## Paired differences to NUE\n\n{paired_markdown(paired_differences(records))}"
+          f"{format_counts_markdown(rows)}\n{unreachable_markdown(records)}## Paired differences to {'NUE' if canonical_method(compare_to) == 'nue' else method_label(canonical_method(compare_to))}\n\n"
+          f"{paired_markdown(paired_differences(records, reference=compare_to))}"
           f"\n## Closed-loop diagnostics\n\n{closed_loop_markdown(records, task)}")
-    handoff = handoff_markdown(records)
+    handoff = handoff_markdown(records, compare_to)
     if handoff:
         md += f"\n## Exploration -> exploitation hand-off\n\n{handoff}"
     paths = {"table.md": out / "table.md", "table.csv": out / "table.csv", "table.tex": out / "table.tex"}
