@@ -9,6 +9,9 @@ never visits); one that imitates them poorly offline has not learned the phase a
     python benchmarks/diagnostics/phase_accuracy.py -c nue=checkpoints/nue.pt \
         -c nue_match=results/candidates/nue_match_s0.pt --data data/demos_v8 \
         --out results/diagnostics/phase_accuracy.json
+    # a recurrent model (nue_gru) needs its episodes in order, its state carried: --episodes scores every held-out step
+    python benchmarks/diagnostics/phase_accuracy.py --episodes -c nue_lean=results/lean/nue_lean.pt \
+        -c nue_gru_lean=runs/nue_gru_lean_s0/best.pt --data data/demos_v9_lean --out results/gru/phase_accuracy.json
 """
 
 from __future__ import annotations
@@ -27,21 +30,45 @@ DISTANCE_BINS = ((0.0, 1.0), (1.0, 2.0), (2.0, 3.0), (3.0, 1e9))
 """Straight-line distance to the goal (metres) of the split."""
 
 
-def score(checkpoint: str, held: DemoSet, ep: np.ndarray, st: np.ndarray) -> dict:
+def _steps_of_every_episode(held: DemoSet, chunk: int = 200):
+    """(episode, steps) chunks of every held-out episode in order, so a recurrent model carries its state."""
+    for e in range(held.n_episodes):
+        n = int(held.lengths[e])
+        for t0 in range(0, n, chunk):
+            yield e, np.arange(t0, min(n, t0 + chunk))
+
+
+def score(checkpoint: str, held: DemoSet, ep: np.ndarray | None, st: np.ndarray | None) -> dict:
+    """Greedy-action accuracy on the held-out steps by phase. ``ep`` / ``st``: sampled steps, each scored alone (a
+    reactive model); None: every held-out episode from its first step in order, the recurrent state carried (what
+    a recurrent model needs, and the same numbers for a reactive one up to the sample)."""
     model, header = load_policy(checkpoint)
     model.eval()
     # the labels ride on a goal-head config's batches; the model reads only its own inputs
     cfg = header.model
     label_cfg = cfg if cfg.goal_head else cfg.replace(goal_head=True)
     hit, view, dist, label = [], [], [], []
+
+    def keep(logits, b):
+        hit.append((logits.argmax(dim=-1) == b.action).reshape(-1).numpy())
+        view.append(b.goal_in_view.reshape(-1).numpy() > 0.5)
+        dist.append(b.goal_distance.reshape(-1).numpy())
+        label.append(b.action.reshape(-1).numpy())
+
     with torch.no_grad():
-        for i in range(0, len(ep), 256):
-            b = held.batch(ep[i:i + 256], st[i:i + 256], label_cfg)
-            out = model(b.inp)
-            hit.append((out.logits.argmax(dim=-1) == b.action).numpy())
-            view.append(b.goal_in_view.numpy() > 0.5)
-            dist.append(b.goal_distance.numpy())
-            label.append(b.action.numpy())
+        if ep is not None and st is not None:
+            for i in range(0, len(ep), 256):
+                b = held.batch(ep[i:i + 256], st[i:i + 256], label_cfg)
+                keep(model(b.inp).logits, b)
+        else:
+            state = None
+            for e, steps in _steps_of_every_episode(held):
+                b = held.batch(np.full((len(steps), 1), e), steps[:, None], label_cfg)
+                reset = torch.zeros((len(steps), 1), dtype=torch.bool)
+                reset[0, 0] = bool(steps[0] == 0)
+                out = model.forward_sequence(b.inp, state, reset)
+                state = out.state
+                keep(out.logits, b)
     h, v, d, a = (np.concatenate(x) for x in (hit, view, dist, label))
     res: dict = {"checkpoint": checkpoint, "steps": int(len(h)), "accuracy": round(float(h.mean()), 4),
                  "in_view": {"steps": int(v.sum()), "accuracy": round(float(h[v].mean()), 4)},
@@ -61,11 +88,17 @@ def main() -> None:
     ap.add_argument("--data", default="data/demos_v8")
     ap.add_argument("--out", default="results/diagnostics/phase_accuracy.json")
     ap.add_argument("--heldout-steps", type=int, default=6000)
+    ap.add_argument("--episodes", action="store_true", help="every held-out step, episode by episode in order with "
+                    "the recurrent state carried (needed for recurrent models such as nue_gru)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     held = DemoSet(args.data, "heldout")
-    ep, st = held.sample_steps(args.heldout_steps, 1)
-    out = {"data": args.data, "heldout_steps": int(len(ep))}
+    if args.episodes:
+        ep = st = None
+        out = {"data": args.data, "heldout_steps": int(sum(held.lengths)), "episodes_in_order": True}
+    else:
+        ep, st = held.sample_steps(args.heldout_steps, 1)
+        out = {"data": args.data, "heldout_steps": int(len(ep))}
     for spec in args.checkpoint:
         name, _, path = spec.partition("=")
         out[name] = score(path or name, held, ep, st)
