@@ -290,16 +290,24 @@ V8 = V7.replace(name="v8", last_mile=("nue", "fr", "nav_a3c"))
 """v7 with the SLING rows of Table I (issue 40): NUE (every seed), FR (every seed) and Nav-A3C also run wrapped in the
 last-mile module on every evaluation set."""
 
-TABLE_I_MODELS_LEAN: tuple[str, ...] = tuple(f"{m}_lean" for m in ("nue", *ABLATION_PRESETS)) + ("fr", "nav_a3c")
-"""Table I's trained rows on the ``lean`` memory: the ``_lean`` twins of NUE and its ablations (30 x 40 maps), FR and
-Nav-A3C (which read no maps)."""
+TABLE_I_MODELS_LEAN: tuple[str, ...] = (tuple(f"{m}_lean" for m in ("nue", *ABLATION_PRESETS))
+                                        + ("fr", "nav_a3c", "vgm", "nrns"))
+"""Table I's trained rows on the ``lean`` memory: the ``_lean`` twins of NUE and its ablations (30 x 40 maps), FR,
+Nav-A3C and the memory baselines VGM and NRNS (which read no maps; MSM could not be identified, docs/msm.md)."""
 
-V9 = V8.replace(name="v9", memory="lean", models=TABLE_I_MODELS_LEAN,
-                train_seeds=(("nue_lean", 3), ("abl_at_cbam_lean", 3), ("abl_none_lean", 3), ("fr", 3), ("nav_a3c", 3)),
+MEMORY_BASELINE_STEPS: tuple[tuple[str, StepPlan], ...] = (("vgm", StepPlan(30_000, 1_500)),
+                                                           ("nrns", StepPlan(30_000, 1_500)))
+"""Step plans of the memory baselines' kinds (under a samples budget only ``eval_every`` is read): VGM's held-out
+accuracy, NRNS's held-out distance error every 1,500 steps, as NUE's."""
+
+V9 = V8.replace(name="v9", memory="lean", models=TABLE_I_MODELS_LEAN, steps=V8.steps + MEMORY_BASELINE_STEPS,
+                train_seeds=(("nue_lean", 3), ("abl_at_cbam_lean", 3), ("abl_none_lean", 3), ("fr", 3), ("nav_a3c", 3),
+                             ("vgm", 3), ("nrns", 3)),
                 swap_maps=("nue_lean",), last_mile=("nue_lean", "fr", "nav_a3c"))
-"""v8 on the ``lean`` memory (issue 38: 1.7x less per NUE episode step, 1.4x faster NUE training), with 3 training seeds
-for NUE, the no-f_u and all-off ablations, FR and Nav-A3C. A candidate, not the default: its NUE rows are named
-``nue_lean`` etc. (results/lean/README.md has the comparison with ``fast`` that decides it)."""
+"""v8 on the ``lean`` memory (issue 38: 1.7x less per NUE episode step, 1.4x faster NUE training), with the memory
+baselines VGM and NRNS (issue 39) and 3 training seeds for NUE, the no-f_u and all-off ablations, FR, Nav-A3C, VGM
+and NRNS. A candidate, not the default: its NUE rows are named ``nue_lean`` etc. (results/lean/README.md has the
+comparison with ``fast`` that decides it)."""
 
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
@@ -316,7 +324,8 @@ RECIPES: dict[str, Recipe] = {
 }
 """Named recipes: ``v6`` (the default and the shipped checkpoints': v5 with 256k samples per model instead of 50
 minutes), ``v7`` (v6 with 3 training seeds for NUE, abl_at_cbam, abl_none and FR), ``v8`` (v7 with the SLING rows of
-NUE, FR and Nav-A3C), ``v5``, ``v3`` (docs/history/checkpoints.md) and ``quick`` (CI; 2 training seeds of NUE, and its
+NUE, FR and Nav-A3C), ``v9`` (a candidate: v8 on the lean memory with VGM and NRNS, 3 seeds for 7 rows), ``v5``, ``v3``
+(docs/history/checkpoints.md) and ``quick`` (CI; 2 training seeds of NUE, and its
 SLING row)."""
 
 

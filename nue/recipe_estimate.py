@@ -28,25 +28,36 @@ class CostModel:
     """Episodes grow by 1 + this x noise (v2: 52.3 steps at noise 0.3 vs 36.8 without)."""
     house_s: float = 3.0
     """Generating one house (and loading it), seconds."""
-    samples_per_s: tuple[tuple[str, float], ...] = (("nue", 98.0), ("fr", 200.0), ("nav_a3c", 232.0))
+    samples_per_s: tuple[tuple[str, float], ...] = (("nue", 98.0), ("fr", 200.0), ("nav_a3c", 232.0), ("nrns", 132.0),
+                                                    ("vgm", 71.0))
     """Eager training throughput per model kind, two trainings side by side on a 2-core Xeon without native bf16
     (fp32): the compiled rates of the v6 run (``results/reproduce/run/stages``, 256,000 samples in ``train_seconds``:
-    the six NUE-family models 136-163 samples/s, mean 147; FR 330; Nav-A3C 334) divided by ``compiled_speedup``."""
-    compiled_speedup: tuple[tuple[str, float], ...] = (("nue", 1.5), ("fr", 1.65), ("nav_a3c", 1.44))
+    the six NUE-family models 136-163 samples/s, mean 147; FR 330; Nav-A3C 334) divided by ``compiled_speedup``.
+    NRNS and VGM (issue 39) by their ratio to NUE on the lean memory (the rate ``nue`` x ``map_train_speedup``'s lean
+    1.37), measured on the 2-core AMD EPYC of 2026-12-06 (results/memory_baselines/README.md): NRNS 938 s for 256,000
+    samples beside ``nue_gru_lean``'s 923 s (two trainings, one core each); VGM 3,712 s beside 3 other jobs, 1.75x the
+    923 s when scaled by ``nue_gru_lean``'s second seed run under the same load (1,956 s), plus its 300 contrastive
+    embedding steps; approximate."""
+    compiled_speedup: tuple[tuple[str, float], ...] = (("nue", 1.5), ("fr", 1.65), ("nav_a3c", 1.44), ("nrns", 1.0),
+                                                       ("vgm", 1.0))
     """Training throughput with ``nue train --compile`` relative to eager, per model kind: eager and compiled steps
     interleaved in one process (batch 64 / 8 x 8 sequences, fp32, one thread, synthetic data, a 2-core Xeon without
-    native bf16)."""
-    select_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 11.5), ("fr", 1.7), ("nav_a3c", 1.9))
+    native bf16). NRNS and VGM: not measured (1.0)."""
+    select_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 11.5), ("fr", 1.7), ("nav_a3c", 1.9), ("nrns", 0.0),
+                                                           ("vgm", 4.2))
     """Closed-loop selection, seconds per episode (400-step limit; the v6 run: 2 x 21 episodes in 7.2-8.6 min per
-    NUE-family model, 73 s FR, 79 s Nav-A3C)."""
+    NUE-family model, 73 s FR, 79 s Nav-A3C). NRNS has none (selected by held-out distance error); VGM: 8.4 s an
+    episode with 4 jobs on the 2 cores (2026-12-06), halved."""
     eval_s_per_episode: tuple[tuple[str, float], ...] = (("nue", 13.3), ("fr", 3.4), ("nav_a3c", 3.9),
                                                          ("expert", 0.2), ("expert-explore", 1.7), ("swap", 4.3),
-                                                         ("sling", 2.5))
+                                                         ("sling", 2.5), ("nrns", 6.8), ("vgm", 5.5))
     """Evaluation, seconds per episode per worker, two workers: the mean ``wall_time`` of the v6 run's val252
     records (the six NUE-family models 12.5-14.1 s, 325-381 steps an episode at 36-40 ms a step). The swapped-maps
     control replays maps recorded along the expert's run of another episode, so its agent neither renders nor
     trains a memory. ``sling`` is what SLING's last-mile wrapper adds to its model's episode (SIFT matching every 4th
-    step at ~22 ms, the depth map every 2nd at ~2 ms: ~7 ms a step, ~300 steps)."""
+    step at ~22 ms, the depth map every 2nd at ~2 ms: ~7 ms a step, ~300 steps). NRNS: ~15 ms a step (30 ms with 4
+    jobs on the 2 cores, 2026-12-06; docs/nrns.md measured 14) x ~450 steps; VGM: its selection's cost per episode
+    x 1.3 (evaluation episodes run up to 800 steps, not 400); both approximate."""
     memory_speedup: tuple[tuple[str, float], ...] = (("lean", 1.70),)
     """Per memory preset other than ``fast``: how much less an episode step of a model that reads the memory's maps
     costs (evaluation and closed-loop selection), a ratio to ``fast``. ``lean``: ``benchmarks/loop.py`` with

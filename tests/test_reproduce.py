@@ -400,16 +400,40 @@ def test_the_lean_memory_shortens_only_the_map_reading_models_by_the_measured_fa
     from nue.recipe import CostModel
 
     v8, v9, c = get_recipe("v8"), get_recipe("v9"), CostModel()
-    assert v9.memory == "lean" and all(m.endswith("_lean") or m in ("fr", "nav_a3c") for m in v9.models)
+    assert v9.memory == "lean" and all(m.endswith("_lean") or m in ("fr", "nav_a3c", "vgm", "nrns") for m in v9.models)
     assert dict(c.memory_speedup)["lean"] == 1.70 and dict(c.map_train_speedup)["lean"] == 1.37
-    one = {s.stage: s for s in estimate(v9.replace(train_seeds=(), last_mile=(), swap_maps=()), 1)}
+    v8_rows = tuple(m for m in v9.models if m not in ("vgm", "nrns"))
+    one = {s.stage: s for s in estimate(v9.replace(models=v8_rows, train_seeds=(), last_mile=(), swap_maps=()), 1)}
     ref = {s.stage: s for s in estimate(v8.replace(train_seeds=(), last_mile=(), swap_maps=()), 1)}
     nue_eval = 252 * 6 * (13.3 - 13.3 / 1.70)
     assert ref["eval/val252"].seconds - one["eval/val252"].seconds == pytest.approx(nue_eval)
     nue_train = 6 * (256_000 / 98.0 * (1 - 1 / 1.37) + 2 * 21 * (11.5 - 11.5 / 1.70))
     assert ref["train"].seconds - one["train"].seconds == pytest.approx(nue_train)
     two = {s.stage: s for s in estimate(v9, 2)}
-    assert "18 runs (models x seeds)" in two["train"].detail and "9 runs with SLING" in two["eval/val252+sling"].detail
+    assert "24 runs (models x seeds)" in two["train"].detail and "9 runs with SLING" in two["eval/val252+sling"].detail
+
+
+def test_v9_trains_the_memory_baselines_like_every_row_and_costs_them(tmp_path):
+    """VGM and NRNS are v9 rows with 3 seeds on the same demonstrations and samples; NRNS is selected by held-out
+    distance error (it has no actions to run in closed loop); their training and evaluation enter the estimate at
+    the cost model's rates (256,000 samples / rate; NRNS without selection episodes)."""
+    from nue.recipe import CostModel
+
+    v9, c = get_recipe("v9"), CostModel()
+    assert v9.seeds_of("vgm") == v9.seeds_of("nrns") == 3 and {"vgm", "nrns"} <= set(v9.models)
+    folders = RunFolders(tmp_path, tmp_path / "scenes", tmp_path / "episodes")
+    nrns, vgm = train_config(v9, "nrns@s2", folders), train_config(v9, "vgm", folders)
+    assert nrns.select == "accuracy" and vgm.select == "closed_loop" and nrns.eval_every == vgm.eval_every == 1_500
+    assert nrns.steps * nrns.batch_size == 256_000 and vgm.steps * vgm.batch_size * vgm.seq_len == 256_000
+    assert nrns.map_dropout == vgm.map_dropout == 0.0 and nrns.out.endswith("nrns@s2")
+    base = v9.replace(models=("fr",), train_seeds=(), last_mile=(), swap_maps=(), experts=())
+    fr = {s.stage: s.seconds for s in estimate(base, 1)}
+    for model, select_s in (("nrns", 0.0), ("vgm", 4.2 * 2 * 21)):
+        both = {s.stage: s.seconds for s in estimate(base.replace(models=("fr", model)), 1)}
+        rate = dict(c.samples_per_s)[model]
+        assert both["train"] - fr["train"] == pytest.approx(c.train_overhead_s + 256_000 / rate + select_s)
+        assert both["eval/val252"] - fr["eval/val252"] == pytest.approx(
+            252 * dict(c.eval_s_per_episode)[model] + c.eval_overhead_s)
 
 
 def test_a_run_started_before_train_seeds_existed_resumes_and_refuses_seeds(tmp_path):
