@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import io
+import dataclasses
 import json
 import math
 
@@ -462,5 +463,10 @@ def test_report_reference_compares_candidates_to_a_variant_of_nue(tmp_path, caps
     assert code == 0, err
     table = (tmp_path / "rep" / "table.md").read_text()
     assert "## Paired differences to nue_lean" in table and "| NUE (full) | 4 | +50.0 [" in table
+    handoff = {"closest_geodesic": 5.0, "closest_step": 0, "exploit_steps": 0, "first_near_step": None,
+               "first_seen_step": None, "outcome": "never_near", "search_steps": 9, "steps_near": 0}
+    with_handoff = [dataclasses.replace(r, extra={**r.extra, "handoff": handoff}) for r in recs]
+    R.write_report(with_handoff, tmp_path / "rep3", compare_to="nue_lean")
+    assert "| method | episodes | nue_lean − method: never near" in (tmp_path / "rep3" / "table.md").read_text()
     code, out, err = run_cli(capsys, "report", f, "--reference", "vgm", "--out", tmp_path / "rep2")
     assert code == 2 and "--reference" in err and "'vgm'" in err and str(f) in err
