@@ -36,7 +36,7 @@ from nue.evaluate.table import (  # noqa: F401  (re-exported)
     DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, method_label, order_methods,
     paper_table, seed_run_name, split_seed,
 )
-from nue.policy.last_mile import SLING_PREFIX
+from nue.evaluate.row_notes import MEMORY_BASELINES, msm_note, sling_notes  # noqa: F401 (re-exported)
 from nue.sim.record import EpisodeRecord
 
 
@@ -258,39 +258,6 @@ def seed_notes(rows: Sequence[TableRow]) -> str:
     seeds = format_seeds_markdown(rows)
     return ((f"\n{SEED_NOTES}\n\nTraining seeds (each run's totals):\n\n{seeds}" if seeds else "") + sling_notes(rows)
             + msm_note(rows))
-
-
-MEMORY_BASELINES: tuple[str, ...] = ("vgm", "nrns")
-"""The paper's memory baselines with a row of ours (MSM has none: :func:`msm_note`)."""
-
-
-def msm_note(rows: Sequence[TableRow], paper=None) -> str:
-    """When some row is a memory baseline (VGM, NRNS): the paper's MSM row has no counterpart here, because the work
-    could not be identified (docs/msm.md), with its total; else ''."""
-    if not any(split_seed(r.method)[0] in MEMORY_BASELINES for r in rows):
-        return ""
-    paper = paper_table() if paper is None else paper
-    total = paper.get("MSM", {}).get("total")
-    theirs = f" (the paper's total: {total[0]:.2f}% SR, SPL {total[1]:.3f})" if total else ""
-    return ("\n*MSM* (the paper's third memory baseline, its ref. 62, \"Multi-Storage Memory\"): not identified, so it "
-            f"has no row of ours{theirs}; what was searched is in docs/msm.md. How VGM and NRNS are built and "
-            "adapted to one 90-degree RGB-D camera: docs/vgm.md, docs/nrns.md.\n")
-
-
-def sling_notes(rows: Sequence[TableRow], paper=None) -> str:
-    """What the *SLING + X* rows are and the paper's SLING rows' totals (they have no counterpart here), with a blank
-    line before, when some row is a ``sling+`` method; else ''."""
-    if not any(split_seed(r.method)[0].startswith(SLING_PREFIX) for r in rows):
-        return ""
-    paper = paper_table() if paper is None else paper
-    theirs = "; ".join(f"{name} {paper[name]['total'][0]:.2f}% SR, SPL {paper[name]['total'][1]:.3f}"
-                       for name in ("SLING+DDPPO", "SLING+OVRL") if name in paper)
-    return ("\n*SLING + X* rows: SLING's last-mile module (SIFT matches between the goal photo and the frame, the goal's "
-            "pose by PnP with the depth, a point-goal controller on the robot's own depth-built map; "
-            "`nue.policy.last_mile`) wrapped around our policy X, on the same episodes with the same per-episode seeds. "
-            "The paper's SLING rows wrap DD-PPO (2.5 billion frames of reinforcement learning) and OVRL (an encoder "
-            "pretrained on other data); neither can be had here (CPU only, nothing downloaded), so they have no row of "
-            f"ours. The paper's totals: {theirs}.\n")
 
 
 def paired_markdown(diffs: Sequence[PairedDiff]) -> str:
