@@ -309,11 +309,26 @@ baselines VGM and NRNS (issue 39) and 3 training seeds for NUE, the no-f_u and a
 and NRNS. A candidate, not the default: its NUE rows are named ``nue_lean`` etc. (results/lean/README.md has the
 comparison with ``fast`` that decides it)."""
 
+TABLE_I_MODELS_GRU_LEAN: tuple[str, ...] = (("nue_gru_lean",) + tuple(f"{m}_gru_lean" for m in ABLATION_PRESETS)
+                                            + ("fr", "nav_a3c", "vgm", "nrns"))
+"""Table I's trained rows with a recurrent NUE: ``nue_gru_lean`` and its ablations with the same 256-unit GRU after
+the fusion (``abl_*_gru_lean``), on the ``lean`` memory; the baselines as in v9."""
+
+V10 = V9.replace(name="v10", models=TABLE_I_MODELS_GRU_LEAN,
+                 train_seeds=(("nue_gru_lean", 3), ("abl_at_cbam_gru_lean", 3), ("abl_none_gru_lean", 3), ("fr", 3),
+                              ("nav_a3c", 3), ("vgm", 3), ("nrns", 3)),
+                 swap_maps=("nue_gru_lean",), last_mile=("nue_gru_lean", "fr", "nav_a3c"))
+"""v9 with a recurrent NUE (issue 37, item 2: ``nue_gru_lean`` reached 83.3% on val252 in 2 training seeds against
+reactive ``nue_lean``'s 78.0%, results/gru/README.md) and its ablations carrying the same state, so an ablation row
+differs from NUE only by the components the paper switches off. A candidate, not the default; recurrent models train
+on ``batch_size // seq_len`` sequences, the same samples per step."""
+
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
     "v7": V7,
     "v8": V8,
     "v9": V9,
+    "v10": V10,
     "v5": V5,
     "v3": V3,
     "quick": V3.replace(
@@ -324,7 +339,8 @@ RECIPES: dict[str, Recipe] = {
 }
 """Named recipes: ``v6`` (the default and the shipped checkpoints': v5 with 256k samples per model instead of 50
 minutes), ``v7`` (v6 with 3 training seeds for NUE, abl_at_cbam, abl_none and FR), ``v8`` (v7 with the SLING rows of
-NUE, FR and Nav-A3C), ``v9`` (a candidate: v8 on the lean memory with VGM and NRNS, 3 seeds for 7 rows), ``v5``, ``v3``
+NUE, FR and Nav-A3C), ``v9`` (a candidate: v8 on the lean memory with VGM and NRNS, 3 seeds for 7 rows), ``v10`` (a candidate: v9 with a
+recurrent NUE and ablations), ``v5``, ``v3``
 (docs/history/checkpoints.md) and ``quick`` (CI; 2 training seeds of NUE, and its
 SLING row)."""
 

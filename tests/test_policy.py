@@ -600,6 +600,26 @@ def test_nue_gru_state_carries_information_and_resets():
         get_model_config("fr").replace(gru_dim=8)
 
 
+def test_recurrent_ablations_differ_from_the_recurrent_nue_only_by_the_ablated_components():
+    """``abl_*_gru`` (and their ``_lean`` twins) are the ablations with NUE's GRU: each config equals ``nue_gru``'s with
+    the ablation's three switches, and the built model has the state (a past changes later logits)."""
+    for abl in ABLATION_PRESETS:
+        for suffix, ref in (("_gru", "nue_gru"), ("_gru_lean", "nue_gru_lean")):
+            cfg, plain = get_model_config(abl + suffix), get_model_config(abl)
+            switches = {k: getattr(plain, k) for k in ("use_uncertainty", "use_aux", "use_cbam")}
+            assert cfg == get_model_config(ref).replace(name=abl + suffix, **switches) and cfg.recurrent
+    cfg = get_model_config("abl_none_gru").replace(map_height=12, map_width=16, frame_height=24, frame_width=32)
+    torch.manual_seed(0)
+    model = build_model(cfg).eval()
+    gen = torch.Generator().manual_seed(5)
+    seq_a = random_input(cfg, 1, gen, time=2)
+    seq_b = PolicyInput.cat([PolicyInput.stack([random_input(cfg, 1, gen)]), seq_a.index(slice(1, None))])
+    with torch.no_grad():
+        out_a = model.forward_sequence(seq_a, model.initial_state(1))
+        out_b = model.forward_sequence(seq_b, model.initial_state(1))
+    assert not torch.allclose(out_a.logits[1:], out_b.logits[1:], atol=1e-6)
+
+
 def test_nue_pano_reads_the_panorama():
     """The panorama branch: the logits depend on the panorama (and only models with ``panorama_dim`` read it);
     prepare_input passes it through and refuses a missing or misshapen one."""

@@ -436,6 +436,22 @@ def test_v9_trains_the_memory_baselines_like_every_row_and_costs_them(tmp_path):
             252 * dict(c.eval_s_per_episode)[model] + c.eval_overhead_s)
 
 
+def test_v10_is_v9_with_the_recurrent_nue_and_ablations(tmp_path):
+    """v10 swaps each NUE-family row of v9 for its GRU twin (same seeds, swapped-maps and SLING rows on the recurrent
+    NUE) and keeps the baselines; a recurrent row trains 8 sequences of 8 steps, the same 256,000 samples."""
+    v9, v10 = get_recipe("v9"), get_recipe("v10")
+    twin = {m: m.replace("_lean", "_gru_lean") if m.startswith(("nue", "abl_")) else m for m in v9.models}
+    assert v10.models == tuple(twin[m] for m in v9.models)
+    assert {twin[m]: n for m, n in v9.train_seeds} == dict(v10.train_seeds)
+    assert v10.swap_maps == ("nue_gru_lean",) and v10.last_mile == ("nue_gru_lean", "fr", "nav_a3c")
+    assert v10.replace(name="v9", models=v9.models, train_seeds=v9.train_seeds, swap_maps=v9.swap_maps,
+                       last_mile=v9.last_mile) == v9
+    folders = RunFolders(tmp_path, tmp_path / "scenes", tmp_path / "episodes")
+    cfg = train_config(v10, "abl_at_cbam_gru_lean@s2", folders)
+    assert cfg.batch_size == 8 and cfg.steps * cfg.batch_size * cfg.seq_len == 256_000 and cfg.map_dropout == 0.2
+    assert "24 runs (models x seeds)" in {s.stage: s for s in estimate(v10, 2)}["train"].detail
+
+
 def test_a_run_started_before_train_seeds_existed_resumes_and_refuses_seeds(tmp_path):
     """A recipe.json written before a field was added (here ``train_seeds``) counts it at its default: the same
     recipe resumes, one with seeds is refused."""

@@ -289,13 +289,16 @@ class ModelConfig:
         return cls(**fields)
 
 
+GRU_DIM = 256
+"""Units of the recurrent state of ``nue_gru`` and the ``abl_*_gru`` ablations."""
+
 _NUE = ModelConfig(goal_in_perception=True)
 """The full model as trained here (the goal also enters f_p); the ablations switch its components off."""
 
 MODEL_PRESETS: dict[str, ModelConfig] = {
     "nue": _NUE,
     "nue_paper": _NUE.replace(name="nue_paper", goal_in_perception=False),
-    "nue_gru": _NUE.replace(name="nue_gru", gru_dim=256),
+    "nue_gru": _NUE.replace(name="nue_gru", gru_dim=GRU_DIM),
     "nue_pano": _NUE.replace(name="nue_pano", panorama_dim=32),
     "nue_pano_gru": _NUE.replace(name="nue_pano_gru", panorama_dim=32, gru_dim=256),
     "nue_goal": _NUE.replace(name="nue_goal", goal_head=True),
@@ -320,12 +323,16 @@ ABLATION_PRESETS: tuple[str, ...] = ("abl_none", "abl_fu", "abl_at_cbam", "abl_f
 LEAN_MAP_SIZE: tuple[int, int] = (30, 40)
 """(h, w) of the ``lean`` memory preset's maps (:mod:`nue.nerf.config`)."""
 
+MODEL_PRESETS.update({f"{m}_gru": MODEL_PRESETS[m].replace(name=f"{m}_gru", gru_dim=GRU_DIM) for m in ABLATION_PRESETS})
 MODEL_PRESETS.update({f"{m}_lean": MODEL_PRESETS[m].replace(name=f"{m}_lean", map_height=LEAN_MAP_SIZE[0],
                                                              map_width=LEAN_MAP_SIZE[1])
-                      for m in ("nue", "nue_gru", "nue_pano", *ABLATION_PRESETS)})
-"""Named model configs. The five ``abl_*`` rows and ``nue`` are paper Table I's ablation block. Each of them, and
-``nue_gru`` and ``nue_pano``, also has a ``<name>_lean`` twin that reads the ``lean`` memory preset's 30 x 40 maps
-(collect with ``--memory lean``, or ``lean_pano`` for ``nue_pano_lean``; issue 38); the baselines read no maps and train on any collection."""
+                      for m in ("nue", "nue_gru", "nue_pano", *ABLATION_PRESETS,
+                                *(f"{a}_gru" for a in ABLATION_PRESETS))})
+"""Named model configs. The five ``abl_*`` rows and ``nue`` are paper Table I's ablation block. ``nue_gru`` is NUE
+with a recurrent state after the fusion; each ``abl_*_gru`` is an ablation with the same state, the ablation block of
+a recurrent NUE (the ablated components are switched off, the state kept). Each of these, and ``nue_pano``, also has a
+``<name>_lean`` twin that reads the ``lean`` memory preset's 30 x 40 maps (collect with ``--memory lean``, or
+``lean_pano`` for ``nue_pano_lean``; issue 38); the baselines read no maps and train on any collection."""
 
 
 def get_model_config(name: str | ModelConfig) -> ModelConfig:
