@@ -24,7 +24,7 @@ from typing import Sequence
 import numpy as np
 
 from nue.errors import ConfigError
-from nue.evaluate.table import seed_run_name
+from nue.evaluate.table import METHODS, canonical_method, seed_run_name
 from nue.policy.config import ABLATION_PRESETS, get_model_config
 from nue.recipe_estimate import (  # noqa: F401  (re-exported: the time estimate of a recipe)
     CostModel, StageEstimate, collection_episodes, episode_counts, estimate, format_duration, format_estimate,
@@ -32,6 +32,8 @@ from nue.recipe_estimate import (  # noqa: F401  (re-exported: the time estimate
 from nue.sim.episode_sets import get_episode_set
 from nue.scene.generator import SPLITS
 
+TABLE_I_KEYS: frozenset[str] = frozenset(m.key for m in METHODS if "+" not in m.key)
+"""Table I's trained rows (``Recipe.rows`` maps a model preset onto one of them)."""
 TABLE_I_MODELS: tuple[str, ...] = ("nue", *ABLATION_PRESETS, "fr", "nav_a3c")
 """Every trained row of the paper's Table I: NUE, the five ablations, FR and Nav-A3C."""
 
@@ -66,8 +68,8 @@ class TrainingRun:
     seed_index: int
     """k, from 0 to the model's ``train_seeds`` - 1."""
     name: str
-    """Run folder ``runs/<name>`` and the method name of its records: ``<model>`` for k = 0, ``<model>@s<k>`` else
-    (:func:`nue.evaluate.table.seed_run_name`)."""
+    """Run folder ``runs/<name>`` and the method name of its records: ``<row>`` for k = 0, ``<row>@s<k>`` else
+    (:func:`nue.evaluate.table.seed_run_name`), where ``<row>`` is the model's Table I row (``Recipe.row_of``)."""
     seed: int
     """Its training seed (:func:`training_seed` of the recipe's seed and k)."""
 
@@ -101,6 +103,12 @@ class Recipe:
     # -- training --------------------------------------------------------------------------------
     models: tuple[str, ...] = TABLE_I_MODELS
     """Model presets to train, each on the same demonstrations with the same budget."""
+    rows: tuple[tuple[str, str], ...] = ()
+    """``(model, row)`` pairs: the Table I row (the method name of its runs and records, a key of
+    :data:`nue.evaluate.table.METHODS`) that a model preset fills when it is not its own name's row, e.g. v10's
+    ``("nue_gru_lean", "nue")``; a model not named fills the row of its own name (a named model the recipe does
+    not train is ignored, as in ``train_seeds``). So the report compares a recipe's
+    NUE and ablations with the paper's rows, whatever their variant; the checkpoints name the preset."""
     train_seeds: tuple[tuple[str, int], ...] = ()
     """Training seeds per model, ``(model, count)`` pairs; a model not named trains once. Seed k of a model is the run
     ``<model>@s<k>`` (k = 0: ``<model>``, trained with ``seed`` as before; k >= 1: with :func:`training_seed`); the
@@ -175,6 +183,12 @@ class Recipe:
             raise ConfigError("recipe", "swap_maps names a model the recipe does not train")
         if set(self.last_mile) - set(self.models):
             raise ConfigError("recipe", "last_mile names a model the recipe does not train")
+        unknown = [r for _, r in self.rows if canonical_method(r) != r or r not in TABLE_I_KEYS]
+        if unknown:
+            raise ConfigError("recipe", f"rows: {', '.join(unknown)} is not a Table I row key")
+        filled = [self.row_of(m) for m in self.models]
+        if len(set(filled)) < len(filled):
+            raise ConfigError("recipe", "rows: two models fill the same Table I row")
         named = [m for m, _ in self.train_seeds]
         for m in named:
             get_model_config(m)
@@ -182,6 +196,10 @@ class Recipe:
             raise ConfigError("recipe", "train_seeds names a model twice")
         if any(not isinstance(n, int) or n < 1 for _, n in self.train_seeds):
             raise ConfigError("recipe", "train_seeds: a model's number of seeds must be an integer >= 1")
+
+    def row_of(self, model: str) -> str:
+        """The Table I row (run and record name) ``model`` fills (``rows``; else its own name)."""
+        return dict(self.rows).get(model, model)
 
     def seeds_of(self, model: str) -> int:
         """Training seeds of ``model`` (1 unless ``train_seeds`` names it)."""
@@ -193,7 +211,7 @@ class Recipe:
         whole seeds of every model first."""
         models = self.models if models is None else tuple(models)
         most = max((self.seeds_of(m) for m in models), default=0)
-        return tuple(TrainingRun(m, k, seed_run_name(m, k), training_seed(self.seed, k))
+        return tuple(TrainingRun(m, k, seed_run_name(self.row_of(m), k), training_seed(self.seed, k))
                      for k in range(most) for m in models if k < self.seeds_of(m))
 
     def training_run(self, name: str) -> TrainingRun:
@@ -235,6 +253,7 @@ class Recipe:
         else:
             budget = "a fixed number of steps each"
         dagger = f", then {self.dagger_rounds} DAgger round(s) (beta {self.dagger_beta})" if self.dagger_rounds else ""
+        rows = (f" (Table I rows: {', '.join(f'{m} as {r}' for m, r in self.rows)})" if self.rows else "")
         seeds = (f"; training seeds: {', '.join(f'{m} x{n}' for m, n in self.train_seeds)} "
                  f"({len(self.training_runs())} runs; the others once)" if self.train_seeds else "")
         last_mile = f"; SLING last mile: {', '.join(self.last_mile)}" if self.last_mile else ""
@@ -242,7 +261,7 @@ class Recipe:
                   if self.select == "closed_loop" else "best.pt by held-out action accuracy")
         return (f"{self.name}: demonstrations from the {self.expert} expert with DART noise {self.noise:g}, "
                 f"{self.episodes_per_bin} + {self.heldout_per_bin} held-out episodes per bin in {houses} training houses "
-                f"(memory preset {self.memory}); {len(self.models)} models ({', '.join(self.models)}) trained for "
+                f"(memory preset {self.memory}); {len(self.models)} models ({', '.join(self.models)}){rows} trained for "
                 f"{budget}, batch {self.batch_size} samples, {self.precision}, map dropout {self.map_dropout:g} for the "
                 f"models that read maps{dagger}{seeds}; {select}; evaluated on {', '.join(self.eval_sets)} "
                 f"(+ {', '.join(self.experts) or 'no experts'}; swapped maps: {', '.join(self.swap_maps) or 'none'}"
@@ -250,12 +269,14 @@ class Recipe:
 
     def to_dict(self) -> dict:
         """Plain JSON data (stored in the run folder; a resumed run must match it exactly). ``train_split`` only when it
-        is not ``train`` and ``last_mile`` only when it names a model, so runs started before they existed resume."""
+        is not ``train`` and ``last_mile`` and ``rows`` only when they name a model, so runs started before they existed resume."""
         d = _jsonable(dataclasses.asdict(self))
         if d["train_split"] == "train":
             del d["train_split"]
         if not d["last_mile"]:
             del d["last_mile"]
+        if not d["rows"]:
+            del d["rows"]
         return d
 
     def replace(self, **changes) -> "Recipe":
@@ -301,12 +322,14 @@ MEMORY_BASELINE_STEPS: tuple[tuple[str, StepPlan], ...] = (("vgm", StepPlan(30_0
 accuracy, NRNS's held-out distance error every 1,500 steps, as NUE's."""
 
 V9 = V8.replace(name="v9", memory="lean", models=TABLE_I_MODELS_LEAN, steps=V8.steps + MEMORY_BASELINE_STEPS,
+                rows=tuple((f"{m}_lean", m) for m in ("nue", *ABLATION_PRESETS)),
                 train_seeds=(("nue_lean", 3), ("abl_at_cbam_lean", 3), ("abl_none_lean", 3), ("fr", 3), ("nav_a3c", 3),
                              ("vgm", 3), ("nrns", 3)),
                 swap_maps=("nue_lean",), last_mile=("nue_lean", "fr", "nav_a3c"))
 """v8 on the ``lean`` memory (issue 38: 1.7x less per NUE episode step, 1.4x faster NUE training), with the memory
 baselines VGM and NRNS (issue 39) and 3 training seeds for NUE, the no-f_u and all-off ablations, FR, Nav-A3C, VGM
-and NRNS. A candidate, not the default: its NUE rows are named ``nue_lean`` etc. (results/lean/README.md has the
+and NRNS. A candidate, not the default: its ``_lean`` models fill NUE's and the ablations' rows (``rows``: run ``nue``
+trains ``nue_lean``) (results/lean/README.md has the
 comparison with ``fast`` that decides it)."""
 
 TABLE_I_MODELS_GRU_LEAN: tuple[str, ...] = (("nue_gru_lean",) + tuple(f"{m}_gru_lean" for m in ABLATION_PRESETS)
@@ -315,6 +338,7 @@ TABLE_I_MODELS_GRU_LEAN: tuple[str, ...] = (("nue_gru_lean",) + tuple(f"{m}_gru_
 the fusion (``abl_*_gru_lean``), on the ``lean`` memory; the baselines as in v9."""
 
 V10 = V9.replace(name="v10", models=TABLE_I_MODELS_GRU_LEAN,
+                 rows=tuple((f"{m}_gru_lean", m) for m in ("nue", *ABLATION_PRESETS)),
                  train_seeds=(("nue_gru_lean", 3), ("abl_at_cbam_gru_lean", 3), ("abl_none_gru_lean", 3), ("fr", 3),
                               ("nav_a3c", 3), ("vgm", 3), ("nrns", 3)),
                  swap_maps=("nue_gru_lean",), last_mile=("nue_gru_lean", "fr", "nav_a3c"))

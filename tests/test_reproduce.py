@@ -445,11 +445,19 @@ def test_v10_is_v9_with_the_recurrent_nue_and_ablations(tmp_path):
     assert {twin[m]: n for m, n in v9.train_seeds} == dict(v10.train_seeds)
     assert v10.swap_maps == ("nue_gru_lean",) and v10.last_mile == ("nue_gru_lean", "fr", "nav_a3c")
     assert v10.replace(name="v9", models=v9.models, train_seeds=v9.train_seeds, swap_maps=v9.swap_maps,
-                       last_mile=v9.last_mile) == v9
+                       last_mile=v9.last_mile, rows=v9.rows) == v9
+    assert [r.name for r in v10.training_runs()][:8] == ["nue", *ABLATION_PRESETS, "fr", "nav_a3c"]
+    assert v10.training_run("abl_none@s1").model == "abl_none_gru_lean"
     folders = RunFolders(tmp_path, tmp_path / "scenes", tmp_path / "episodes")
-    cfg = train_config(v10, "abl_at_cbam_gru_lean@s2", folders)
+    cfg = train_config(v10, "abl_at_cbam@s2", folders)
+    assert cfg.model == "abl_at_cbam_gru_lean" and cfg.out.endswith("abl_at_cbam@s2")
     assert cfg.batch_size == 8 and cfg.steps * cfg.batch_size * cfg.seq_len == 256_000 and cfg.map_dropout == 0.2
     assert "24 runs (models x seeds)" in {s.stage: s for s in estimate(v10, 2)}["train"].detail
+    assert "nue_gru_lean as nue" in v10.summary() and "rows" not in get_recipe("v8").to_dict()
+    with pytest.raises(ConfigError, match="same Table I row"):
+        v10.replace(models=(*v10.models, "nue"))
+    with pytest.raises(ConfigError, match="not a Table I row key"):
+        v10.replace(rows=(("nue_gru_lean", "nue_gru"),))
 
 
 def test_a_run_started_before_train_seeds_existed_resumes_and_refuses_seeds(tmp_path):
