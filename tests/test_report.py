@@ -415,7 +415,43 @@ def test_a_verdict_that_depends_on_the_seed_is_named():
     assert "| f_u=on AT=off CBAM=off | 30 (2 x 1 seeds) | +50.0 [+0.0, +100.0] | not resolved" in md
     assert md.endswith(f"Verdicts that depend on the seed:\n\n{note}")
     agree = R.paired_differences([r for r in recs if r.method != "abl_fu@s1"])
-    assert R.seed_dependence_markdown(agree) == "" and R.paired_markdown(agree) == R.format_paired_markdown(agree)
+    assert R.seed_dependence_markdown(agree) == ""
+    assert R.paired_markdown(agree) == R.format_paired_markdown(agree) + f"\n{R.HOLM_NOTE}\n"
+
+
+def test_bootstrap_p_and_holm_by_hand():
+    """p = 2 min(P(mean <= 0), P(mean >= 0)) of the resamples; Holm rejects in order of p while p <= alpha / (m - i)."""
+    from nue.evaluate.stats import bootstrap_p, holm
+
+    means = np.array([[-0.1, 0.0], [0.2, 0.0], [0.3, 0.1], [0.4, 0.1], [0.5, 0.2]] * 2)  # 10 resamples, 2 columns
+    assert bootstrap_p(means).tolist() == pytest.approx([0.4, 0.8])  # 2 of 10 <= 0; 4 of 10 are 0 (count as <= 0)
+    assert holm([0.01, 0.04, 0.03]) == [True, False, False]  # 0.01 <= .05/3; 0.03 > .05/2 stops
+    assert holm([0.01, 0.02, 0.04]) == [True, True, True]  # .0167, .025, .05
+    assert holm([0.2, float("nan"), 0.01]) == [False, False, True]  # NaN neither rejects nor counts: .01 <= .05/2
+    assert holm([]) == []
+
+
+def test_the_paired_table_says_which_verdicts_survive_holm():
+    """Three rows against NUE on the same 40 episodes: one better everywhere (p = 0, holds), one better on 5 of 40
+    episodes only (resolved alone, p about 0.01: holds at Holm's second threshold .05/2), one better on 1 of 40 (not
+    resolved: no Holm cell); with p 0.04 the second no longer holds."""
+    n = 40
+    recs = [rec(i, "easy", False) for i in range(n)]
+    recs += [rec(i, "easy", True, method="abl_none") for i in range(n)]
+    recs += [rec(i, "easy", i < 5, method="abl_fu") for i in range(n)]
+    recs += [rec(i, "easy", i < 1, method="fr") for i in range(n)]
+    diffs = R.paired_differences(recs, metrics=("sr",))
+    by = {d.method: d for d in diffs}
+    assert by["abl_none"].p == 0.0 and by["abl_fu"].resolved and not by["fr"].resolved
+    # 5 of 40 successes: P(resampled mean <= 0) = (35/40)^40 = 0.0048 -> p about 0.0097 <= .05/2 (second smallest)
+    assert by["abl_fu"].p == pytest.approx(2 * (35 / 40) ** 40, abs=0.004)
+    kept = R.holm_verdicts(diffs)
+    assert kept == {("abl_none", "sr"): True, ("abl_fu", "sr"): True, ("fr", "sr"): False}
+    md = R.format_paired_markdown(diffs)
+    assert "Holm over 3 rows" in md and md.count("| holds |") == 2
+    strict = [dataclasses.replace(d, p=0.04) if d.method == "abl_fu" else d for d in diffs]
+    assert R.holm_verdicts(strict)[("abl_fu", "sr")] is False
+    assert "not resolved (p 0.040)" in R.format_paired_markdown(strict)
 
 
 def test_results_md_with_seeds_has_the_seed_notes_and_a_single_seed_one_has_none():

@@ -11,6 +11,8 @@ with several seeds over training seeds x episodes, with the note on verdicts tha
   the latter understated with few seeds. Each (method seed, NUE seed) pair of runs also gets its own
   episode-only interval (``PairedDiff.seed_pairs``): :func:`seed_dependence_markdown` names the comparisons whose
   verdict differs between those pairs.
+* Multiple comparisons: each difference also carries a bootstrap p-value, and :func:`holm_verdicts` says which
+  resolved verdicts survive a Holm-Bonferroni correction across all the rows compared with the reference.
 """
 
 from __future__ import annotations
@@ -22,8 +24,8 @@ from typing import Sequence
 import numpy as np
 
 from nue.evaluate.metrics import dts, spl, success
-from nue.evaluate.stats import paired_bootstrap, seed_episode_bootstrap
-from nue.evaluate.table import by_method_and_seed, canonical_method, method_label, seed_runs
+from nue.evaluate.stats import holm, paired_bootstrap, paired_bootstrap_p, seed_episode_bootstrap_p
+from nue.evaluate.table import by_method_and_seed, canonical_method, is_earlier_recipe, method_label, seed_runs
 from nue.sim.record import EpisodeRecord
 
 METRIC_FNS = {"sr": success, "spl": spl, "dts": dts}
@@ -75,6 +77,9 @@ class PairedDiff:
     """Training seeds of the reference in the difference."""
     seed_pairs: tuple[SeedPairDiff, ...] = ()
     """With several seeds on either side: every (method seed, reference seed) pair of runs; else empty."""
+    p: float = math.nan
+    """Two-sided bootstrap p-value of "no difference", from the same resamples as the interval
+    (:func:`nue.evaluate.stats.bootstrap_p`); what :func:`holm_verdicts` corrects across the comparisons."""
 
     @property
     def resolved(self) -> bool:
@@ -120,14 +125,14 @@ def paired_differences(records: Sequence[EpisodeRecord], reference: str = "nue",
         common = sorted(set.intersection(*(set(v) for v in (*vals, *ref_vals))))
         pairs: list[list[SeedPairDiff]] = [[] for _ in metrics]
         if not common:
-            mean = lo = hi = np.full(len(metrics), math.nan)
+            mean = lo = hi = pvals = np.full(len(metrics), math.nan)
         elif len(vals) == len(ref_vals) == 1:
             d = np.array([vals[0][c] - ref_vals[0][c] for c in common])
-            mean, lo, hi = paired_bootstrap(d, n_boot, seed)
+            mean, lo, hi, pvals = paired_bootstrap_p(d, n_boot, seed)
         else:
             a = np.array([[v[c] for c in common] for v in vals])  # (seeds, episodes, metrics)
             b = np.array([[v[c] for c in common] for v in ref_vals])
-            mean, lo, hi = seed_episode_bootstrap(a, b, n_boot, seed)
+            mean, lo, hi, pvals = seed_episode_bootstrap_p(a, b, n_boot, seed)
             runs = [(i, j) for i in range(len(vals)) for j in range(len(ref_vals))]
             # one call for every pair: its columns share the resampled episodes, as separate calls with ``seed`` would
             pm, plo, phi = paired_bootstrap(np.concatenate([a[i] - b[j] for i, j in runs], axis=1), n_boot, seed)
@@ -136,7 +141,26 @@ def paired_differences(records: Sequence[EpisodeRecord], reference: str = "nue",
                     c = p * len(metrics) + m
                     pairs[m].append(SeedPairDiff(names[key][i], names[ref][j], float(pm[c]), float(plo[c]), float(phi[c])))
         out += [PairedDiff(key, ref, m, len(common), float(mean[j]), float(lo[j]), float(hi[j]), len(vals),
-                           len(ref_vals), tuple(pairs[j])) for j, m in enumerate(metrics)]
+                           len(ref_vals), tuple(pairs[j]), float(pvals[j])) for j, m in enumerate(metrics)]
+    return out
+
+
+def in_holm_family(diff: PairedDiff) -> bool:
+    """Whether a comparison counts in :func:`holm_verdicts`' family: it has episodes and its method is not an earlier
+    recipe's row (``nue_v5``, :func:`nue.evaluate.table.is_earlier_recipe`; those are listed for history)."""
+    return diff.n_pairs > 0 and not is_earlier_recipe(diff.method)
+
+
+def holm_verdicts(diffs: Sequence[PairedDiff], alpha: float = 0.05) -> dict[tuple[str, str], bool]:
+    """Per (method, metric) of the family (:func:`in_holm_family`): whether the difference stays resolved when the
+    family's comparisons with the reference on that metric are corrected together (Holm-Bonferroni at family-wise
+    ``alpha``, :func:`nue.evaluate.stats.holm`, on the bootstrap p-values), so k rows against NUE at 5% face
+    thresholds from ``alpha / k`` to ``alpha``. Comparisons outside the family are absent."""
+    out: dict[tuple[str, str], bool] = {}
+    for metric in dict.fromkeys(d.metric for d in diffs):
+        family = [d for d in diffs if d.metric == metric and in_holm_family(d)]
+        for d, rejected in zip(family, holm([d.p for d in family], alpha)):
+            out[(d.method, metric)] = rejected and d.resolved
     return out
 
 

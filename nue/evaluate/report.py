@@ -28,7 +28,7 @@ from nue.evaluate import coverage as cov
 from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, record_diagnostics
 from nue.evaluate.metrics import unreachable_end
 from nue.evaluate.paired import (  # noqa: F401  (re-exported)
-    METRIC_FNS, PairedDiff, SeedPairDiff, paired_differences, seed_dependence_markdown,
+    METRIC_FNS, PairedDiff, SeedPairDiff, holm_verdicts, in_holm_family, paired_differences, seed_dependence_markdown,
 )
 from nue.evaluate.record_keys import OnDropped
 from nue.evaluate.stats import paired_bootstrap, seed_episode_bootstrap, wilson_interval  # noqa: F401  (re-exported)
@@ -199,7 +199,8 @@ def format_latex(rows: Sequence[TableRow], paper: Mapping | None = None) -> str:
 
 
 def format_paired_markdown(diffs: Sequence[PairedDiff]) -> str:
-    """Table of paired differences to the reference: SR in percentage points, SPL as is, with verdicts."""
+    """Table of paired differences to the reference: SR in percentage points, SPL as is, with verdicts; a resolved
+    verdict says whether it survives the Holm correction across the table's rows (:func:`holm_verdicts`)."""
     by: dict[str, dict[str, PairedDiff]] = {}
     for d in diffs:
         by.setdefault(d.method, {})[d.metric] = d
@@ -207,15 +208,20 @@ def format_paired_markdown(diffs: Sequence[PairedDiff]) -> str:
     ref = method_label(diffs[0].reference) if diffs else "NUE (full)"
     scale = {"sr": 100.0}
     unit = {"sr": " (pp)"}
-    head = ["method", "pairs"] + [h for m in metrics for h in (f"Δ{m.upper()}{unit.get(m, '')} vs {ref} [95% CI]", "verdict")]
+    kept = holm_verdicts(diffs)
+    rows = {m: sum(1 for d in diffs if d.metric == m and in_holm_family(d)) for m in metrics}
+    head = ["method", "pairs"] + [h for m in metrics for h in (f"Δ{m.upper()}{unit.get(m, '')} vs {ref} [95% CI]", "verdict",
+                                                              f"Holm over {rows[m]} rows")]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for key in order_methods(by):
         cells = []
         for m in metrics:
             d, s = by[key][m], scale.get(m, 1.0)
             fmt = ".1f" if m == "sr" else ".3f"
+            after = ("" if not d.resolved or not in_holm_family(d) else "holds" if kept[(key, m)]
+                     else f"not resolved (p {_f(d.p, '.3f')})")
             cells += [f"{_f(s * d.mean, '+' + fmt)} [{_f(s * d.lo, '+' + fmt)}, {_f(s * d.hi, '+' + fmt)}]",
-                      d.verdict(higher_is_better=m != "dts")]
+                      d.verdict(higher_is_better=m != "dts"), after]
         first = next(iter(by[key].values()))
         seeds = f" ({first.seeds} x {first.reference_seeds} seeds)" if first.seed_pairs else ""
         lines.append(f"| {method_label(key)} | {first.n_pairs}{seeds} | " + " | ".join(cells) + " |")
@@ -260,10 +266,19 @@ def seed_notes(rows: Sequence[TableRow]) -> str:
             + msm_note(rows))
 
 
+HOLM_NOTE = (
+    "Multiple comparisons: the table compares every row with the same reference, so some intervals exclude 0 by "
+    "chance. \"Holm over k rows\" corrects each metric's k comparisons together (Holm-Bonferroni, family-wise 5%, "
+    "on two-sided bootstrap p-values from the same resamples as the intervals): \"holds\" when a resolved verdict "
+    "survives it. The family is every row of the current recipe in the table, controls (+swap) and training seeds' "
+    "rows included; earlier recipes' rows (`_v<N>`) are listed for history and not counted."
+)
+
+
 def paired_markdown(diffs: Sequence[PairedDiff]) -> str:
-    """The paired-differences table, then (several training seeds) :data:`PAIRED_SEED_NOTES` and the comparisons
-    whose verdict depends on the seed (:func:`nue.evaluate.paired.seed_dependence_markdown`)."""
-    text = format_paired_markdown(diffs)
+    """The paired-differences table with :data:`HOLM_NOTE`, then (several training seeds) :data:`PAIRED_SEED_NOTES`
+    and the comparisons whose verdict depends on the seed (:func:`nue.evaluate.paired.seed_dependence_markdown`)."""
+    text = format_paired_markdown(diffs) + (f"\n{HOLM_NOTE}\n" if diffs else "")
     if not any(d.seed_pairs for d in diffs):
         return text
     depends = seed_dependence_markdown(diffs)

@@ -8,7 +8,6 @@ the notes on seeds appear only then, so a table of single runs reads as before."
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -17,6 +16,7 @@ from nue.evaluate.report import (
     NOTES, handoff_markdown, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
     format_markdown, method_label, paired_differences, paired_markdown, paper_table, seed_notes, unreachable_markdown,
 )
+from nue.evaluate.table import is_earlier_recipe  # noqa: F401  (re-exported)
 from nue.sim.record import EpisodeRecord
 
 
@@ -28,16 +28,6 @@ def _counts_markdown(records: Sequence[EpisodeRecord], rows) -> str:
 
 MAIN_SET = "Table I's episodes"
 """The name the main records go by among the sets :func:`pooled_section_markdown` pools."""
-
-_EARLIER_RECIPE = re.compile(r"_v[0-9]+[a-z]?(@s[0-9]+)?(\+swap)?$")
-
-
-def is_earlier_recipe(method: str) -> bool:
-    """Whether a record's method names an earlier recipe's model (``nue_v2``, ``fr_v1``) or an earlier run of a
-    recipe (``nue_v5a``), with or without the swapped-maps control: a ``_v<N>`` or ``_v<N><letter>`` suffix
-    (then a training seed's ``@s<k>``, then ``+swap``). A current recipe's seed run (``nue@s1``) is not one."""
-    return bool(_EARLIER_RECIPE.search(method))
-
 
 def _comparison_parts(rows, paper, records: Sequence[EpisodeRecord], where: str) -> list[str]:
     """The ordering against the paper's (of ``rows``), the paired differences to NUE and the coverage (of

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+from typing import Sequence
 
 import numpy as np
 
@@ -26,6 +27,51 @@ def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
+def bootstrap_p(means: np.ndarray) -> np.ndarray:
+    """Two-sided percentile-bootstrap p-value of "the difference is 0" per column of resampled ``means``
+    (n_boot, k): ``min(1, 2 min(P(mean <= 0), P(mean >= 0)))``, the smallest level at which the matching percentile
+    interval would exclude 0. Example: 10 resamples with 1 of them <= 0 and 9 > 0 give p = 0.2."""
+    means = np.asarray(means, dtype=np.float64)
+    return np.minimum(1.0, 2.0 * np.minimum((means <= 0).mean(axis=0), (means >= 0).mean(axis=0)))
+
+
+def holm(p: Sequence[float], alpha: float = 0.05) -> list[bool]:
+    """Holm-Bonferroni step-down over a family of comparisons: which null hypotheses are rejected at family-wise
+    level ``alpha``. Sorted ascending, the i-th smallest p (i from 0) is compared with ``alpha / (m - i)``; rejection
+    stops at the first that fails. NaN p-values never reject (and do not count in m).
+
+    Example: p = (0.01, 0.04, 0.03), alpha 0.05 -> 0.01 <= 0.05/3 rejects, 0.03 > 0.05/2 stops: (True, False, False).
+    """
+    idx = [i for i in np.argsort(np.asarray(p, dtype=np.float64)) if not math.isnan(p[i])]
+    out = [False] * len(p)
+    for rank, i in enumerate(idx):
+        if p[i] > alpha / (len(idx) - rank):
+            break
+        out[i] = True
+    return out
+
+
+def _paired_means(d: np.ndarray, n_boot: int, seed: int, chunk: int) -> tuple[np.ndarray, np.ndarray]:
+    """(estimate (k,), resampled means (n_boot, k)) of :func:`paired_bootstrap`."""
+    d = np.asarray(d, dtype=np.float64)
+    d = d[:, None] if d.ndim == 1 else d
+    n = d.shape[0]
+    rng = np.random.default_rng(seed)
+    means = np.empty((n_boot, d.shape[1]))
+    for s in range(0, n_boot, chunk):
+        b = min(chunk, n_boot - s)
+        means[s:s + b] = d[rng.integers(0, n, size=(b, n))].mean(axis=1)
+    return d.mean(axis=0), means
+
+
+def paired_bootstrap_p(d: np.ndarray, n_boot: int = 10_000, seed: int = 0, level: float = 0.95,
+                       chunk: int = 1000) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`paired_bootstrap` and the :func:`bootstrap_p` of the same resamples: ``(mean, lo, hi, p)``."""
+    est, means = _paired_means(d, n_boot, seed, chunk)
+    lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2], axis=0)
+    return est, lo, hi, bootstrap_p(means)
+
+
 def paired_bootstrap(d: np.ndarray, n_boot: int = 10_000, seed: int = 0, level: float = 0.95,
                      chunk: int = 1000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Means and percentile interval of paired differences ``d`` (n,) or (n, k), resampling rows.
@@ -35,16 +81,16 @@ def paired_bootstrap(d: np.ndarray, n_boot: int = 10_000, seed: int = 0, level: 
     Returns ``(mean (k,), lo (k,), hi (k,))``; all k columns share the same resampled rows
     (``numpy.random.default_rng(seed)``, drawn ``chunk`` resamples at a time).
     """
-    d = np.asarray(d, dtype=np.float64)
-    d = d[:, None] if d.ndim == 1 else d
-    n = d.shape[0]
-    rng = np.random.default_rng(seed)
-    means = np.empty((n_boot, d.shape[1]))
-    for s in range(0, n_boot, chunk):
-        b = min(chunk, n_boot - s)
-        means[s:s + b] = d[rng.integers(0, n, size=(b, n))].mean(axis=1)
+    mean, lo, hi, _ = paired_bootstrap_p(d, n_boot, seed, level, chunk)
+    return mean, lo, hi
+
+
+def seed_episode_bootstrap_p(a: np.ndarray, b: np.ndarray, n_boot: int = 10_000, seed: int = 0, level: float = 0.95,
+                             chunk: int = 1000) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`seed_episode_bootstrap` and the :func:`bootstrap_p` of the same resamples: ``(mean, lo, hi, p)``."""
+    est, means = _seed_episode_means(a, b, n_boot, seed, chunk)
     lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2], axis=0)
-    return d.mean(axis=0), lo, hi
+    return est, lo, hi, bootstrap_p(means)
 
 
 def seed_episode_bootstrap(a: np.ndarray, b: np.ndarray, n_boot: int = 10_000, seed: int = 0, level: float = 0.95,
@@ -67,6 +113,12 @@ def seed_episode_bootstrap(a: np.ndarray, b: np.ndarray, n_boot: int = 10_000, s
 
     Returns ``(mean (k,), lo (k,), hi (k,))``; ``numpy.random.default_rng(seed)``, ``chunk`` resamples at a time.
     """
+    mean, lo, hi, _ = seed_episode_bootstrap_p(a, b, n_boot, seed, level, chunk)
+    return mean, lo, hi
+
+
+def _seed_episode_means(a: np.ndarray, b: np.ndarray, n_boot: int, seed: int, chunk: int) -> tuple[np.ndarray, np.ndarray]:
+    """(estimate (k,), resampled means (n_boot, k)) of :func:`seed_episode_bootstrap`."""
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     a = a[..., None] if a.ndim == 2 else a
@@ -88,5 +140,4 @@ def seed_episode_bootstrap(a: np.ndarray, b: np.ndarray, n_boot: int = 10_000, s
         per_seed_a = (times @ flat_a).reshape(m, sa, k) / n
         per_seed_b = (times @ flat_b).reshape(m, sb, k) / n
         means[s:s + m] = np.einsum("ms,msk->mk", wa, per_seed_a) - np.einsum("ms,msk->mk", wb, per_seed_b)
-    lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2], axis=0)
-    return (a.mean(axis=0) - b.mean(axis=0)).mean(axis=0), lo, hi
+    return (a.mean(axis=0) - b.mean(axis=0)).mean(axis=0), means

@@ -65,6 +65,16 @@ SEED_MARK = "@s"
 _SEED_RUN = re.compile(r"^(.+)@s([1-9][0-9]*)(\+swap)?$")
 
 
+_EARLIER_RECIPE = re.compile(r"_v[0-9]+[a-z]?(@s[0-9]+)?(\+swap)?$")
+
+
+def is_earlier_recipe(method: str) -> bool:
+    """Whether a record's method names an earlier recipe's model (``nue_v2``, ``fr_v1``) or an earlier run of a
+    recipe (``nue_v5a``), with or without the swapped-maps control: a ``_v<N>`` or ``_v<N><letter>`` suffix
+    (then a training seed's ``@s<k>``, then ``+swap``). A current recipe's seed run (``nue@s1``) is not one."""
+    return bool(_EARLIER_RECIPE.search(method))
+
+
 def seed_run_name(model: str, k: int) -> str:
     """The run folder / record method name of training seed ``k`` of ``model``: ``model`` for k = 0 (a single-seed
     recipe's names are unchanged), ``model@s<k>`` for k >= 1 (``nue@s2``)."""
