@@ -222,3 +222,12 @@ def test_paired_outcome_differences():
     assert diffs[("fr", "never_near")].lo <= -0.5 <= diffs[("fr", "never_near")].hi
     assert "| fr | 4 | -50.0 [" in format_outcome_differences(list(diffs.values()))
     assert outcome_differences(recs, reference="nav_a3c") == []
+    # a second FR seed (fr@s1) never near on every episode: pooled, FR's seed mean is (3/4 + 4/4) / 2 never near;
+    # episode d, which fr@s1 did not run, drops out of the pooled difference (a, b, c: NUE 1/3, FR (3 + 3) / 6)
+    recs += [rec("fr@s1", e, never) for e in "abc"]
+    pooled = {(d.method, d.outcome): d for d in outcome_differences(recs)}
+    assert set(pooled) == {("fr", "never_near"), ("fr", "found_then_lost")}
+    nn = pooled[("fr", "never_near")]
+    assert (nn.n, nn.seeds, nn.reference_seeds) == (3, 2, 1) and nn.diff == pytest.approx(1 / 3 - 1)
+    assert nn.lo <= nn.diff <= nn.hi
+    assert "| fr | 3 (2 x 1 seeds) | -66.7 [" in format_outcome_differences(list(pooled.values()))

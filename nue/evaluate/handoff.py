@@ -243,36 +243,54 @@ class OutcomeDiff:
     method: str
     outcome: str
     n: int
-    """Episodes both ran."""
+    """Episodes both ran (with several training seeds: that every seed's run of both ran)."""
     diff: float
-    """Mean of (reference has the class) - (method has it), as a fraction: below 0 = the reference has fewer."""
+    """Mean of (reference has the class) - (method has it), as a fraction: below 0 = the reference has fewer. With
+    several seeds, each side's seed mean per episode."""
     lo: float
     hi: float
-    """95% paired-bootstrap interval of ``diff`` (10,000 resamples, seed 0)."""
+    """95% interval of ``diff`` (10,000 resamples, seed 0): paired bootstrap over the episodes, or with several
+    training seeds on either side the two-level (seeds, then episodes) bootstrap of
+    :func:`nue.evaluate.stats.seed_episode_bootstrap`."""
+    seeds: int = 1
+    """Training seeds (runs ``<method>@s<k>``) of the method pooled in the difference."""
+    reference_seeds: int = 1
+    """Training seeds of the reference pooled in the difference."""
 
 
 def outcome_differences(records: Sequence, reference: str = "nue", classes: Sequence[str] = ("never_near", "found_then_lost"),
                         method_of=lambda r: r.method) -> list[OutcomeDiff]:
     """Per method other than ``reference`` (sorted) and class, the paired difference of the class's rate
-    (reference minus method), matched on (scene, episode id) over the records carrying a hand-off."""
-    from nue.evaluate.stats import paired_bootstrap
+    (reference minus method), matched on (scene, episode id) over the records carrying a hand-off. A method's
+    training seeds (``<method>@s<k>``, :func:`nue.evaluate.table.split_seed`) are pooled, as the paired differences
+    of SR pool them (:mod:`nue.evaluate.paired`): over the episodes every seed's run of both ran."""
+    from nue.evaluate.stats import paired_bootstrap, seed_episode_bootstrap
+    from nue.evaluate.table import split_seed
 
-    by: dict[str, dict] = {}
+    by: dict[str, dict[int, dict]] = {}
     for r in records:
         h = record_handoff(r)
         if h is not None:
-            by.setdefault(method_of(r), {})[(r.scene, r.episode_id)] = h.outcome
+            base, k = split_seed(method_of(r))
+            by.setdefault(base, {}).setdefault(k, {})[(r.scene, r.episode_id)] = h.outcome
     ref = by.get(reference)
     if not ref:
         return []
     out = []
     for m in sorted(k for k in by if k != reference):
-        keys = sorted(set(ref) & set(by[m]))
+        runs = [*by[m].values(), *ref.values()]
+        keys = sorted(set.intersection(*(set(v) for v in runs)))
         if not keys:
             continue
-        d = np.array([[(ref[k] == c) - (by[m][k] == c) for c in classes] for k in keys], dtype=np.float64)
-        mean, lo, hi = paired_bootstrap(d)
-        out += [OutcomeDiff(m, c, len(keys), float(mean[i]), float(lo[i]), float(hi[i])) for i, c in enumerate(classes)]
+        ind = lambda seeds: np.array([[[o[k] == c for c in classes] for k in keys]  # noqa: E731
+                                      for o in seeds.values()], dtype=np.float64)  # (seeds, episodes, classes)
+        a, b = ind(by[m]), ind(ref)
+        if len(a) == len(b) == 1:
+            mean, lo, hi = paired_bootstrap(b[0] - a[0])
+        else:
+            mean, lo, hi = seed_episode_bootstrap(b, a)
+        out += [OutcomeDiff(m, c, len(keys), float(mean[i]), float(lo[i]), float(hi[i]), len(a), len(b))
+                for i, c in enumerate(classes)]
     return out
 
 
@@ -285,7 +303,8 @@ def format_outcome_differences(diffs: Sequence[OutcomeDiff], labels: Mapping[str
              + " |", "|" + "---|" * (len(classes) + 2)]
     for m in dict.fromkeys(d.method for d in diffs):
         row = {d.outcome: d for d in diffs if d.method == m}
-        n = next(iter(row.values())).n
-        lines.append(f"| {(labels or {}).get(m, m)} | {n} | " + " | ".join(
+        first = next(iter(row.values()))
+        seeds = f" ({first.seeds} x {first.reference_seeds} seeds)" if (first.seeds, first.reference_seeds) != (1, 1) else ""
+        lines.append(f"| {(labels or {}).get(m, m)} | {first.n}{seeds} | " + " | ".join(
             f"{100 * row[c].diff:+.1f} [{100 * row[c].lo:+.1f}, {100 * row[c].hi:+.1f}]" for c in classes) + " |")
     return "\n".join(lines) + "\n"

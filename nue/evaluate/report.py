@@ -338,7 +338,7 @@ def handoff_markdown(records: Sequence[EpisodeRecord], reference: str = "nue") -
         ref = _reference_label(reference)
         text += (f"\nPaired differences of the failure classes to {ref} (the share of episodes, {ref}'s minus the "
                  f"method's; below 0 = {ref} fails that way less often; 95% paired bootstrap over the episodes both "
-                 "ran):\n\n"
+                 "ran; a method's training seeds are pooled, seeds x episodes, as in the paired differences of SR):\n\n"
                  f"{format_outcome_differences(diffs, labels, ref)}")
     return text
 
