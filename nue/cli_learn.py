@@ -111,7 +111,7 @@ def _run_dagger(cfg: TrainConfig, dagger: DaggerConfig, scene: list[Path], scene
     expert_data = cfg.data.split(",")[0]
     with hold_output(cfg.out):  # the run folder, until dagger.json is written
         collect_cfg = collect_config_from_manifest(read_manifest(expert_data), scene, cfg.device,
-                                                   manifest_path(expert_data))
+                                                   manifest_path(expert_data), model=cfg.model)
         rounds = run_dagger(cfg, collect_cfg, dagger, scenes_root, workers=workers, ray_address=ray_address,
                             select=select_run)
         (Path(cfg.out) / "dagger.json").write_text(json.dumps([r.to_dict() for r in rounds], indent=1, default=str)

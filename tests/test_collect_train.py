@@ -472,6 +472,30 @@ def test_dagger_from_a_given_checkpoint_counts_rollouts_against_the_round_budget
     assert load_checkpoint(tmp_path / "run" / "round_1" / "best.pt")["model_config"]["name"] == "nue"
 
 
+def test_dagger_rolls_out_in_the_collections_layout(demos, houses):
+    """DAgger's rollouts store what the expert collection stores: the trained model's layout when it reads it, else
+    the first preset reading the collection's maps (a ``lean`` collection: ``nue_lean``; FR reads no maps); a layout
+    no preset reads is a DataError naming the manifest."""
+    import dataclasses
+
+    from nue.errors import DataError
+    from nue.policy.config import get_model_config
+    from nue.sim.task import get_task
+    from nue.train.dagger import collect_config_from_manifest, layout_model
+    from nue.train.manifest import DataLayout, read_manifest
+
+    manifest = read_manifest(demos)
+    assert collect_config_from_manifest(manifest, houses).model == "nue"
+    task = get_task(manifest.task)
+    lean = dataclasses.replace(manifest, model_layout=DataLayout.of(get_model_config("nue_lean").for_task(task)))
+    assert layout_model(lean, "nue_gru_lean") == "nue_gru_lean" and layout_model(lean, "abl_none_lean") == "abl_none_lean"
+    assert layout_model(lean, "fr") == layout_model(lean, "nue") == "nue_lean"
+    assert collect_config_from_manifest(lean, houses, model="fr").model == "nue_lean"
+    odd = dataclasses.replace(manifest, model_layout=dataclasses.replace(manifest.model_layout, map_size=(7, 9)))
+    with pytest.raises(DataError, match="m.json"):
+        layout_model(odd, "nue", where="m.json")
+
+
 def test_dagger_options_are_nue_daggers_and_nue_train_refuses_the_removed_spellings(monkeypatch, capsys, tmp_path):
     """``nue dagger`` builds the DAgger run from its options; ``nue train --dagger-*`` (deprecated, now removed; see
     docs/cli.md's changelog) stops with the one-line error of an unknown option, exit 2, before anything runs."""

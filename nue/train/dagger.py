@@ -24,7 +24,9 @@ from nue.output_lock import hold_output
 from nue.train.bc import Selector, TrainConfig, TrainResult, train
 from nue.train.collect import CollectConfig, CollectSummary, collect
 from nue.train.collect_job import AgentSpec
-from nue.train.manifest import CollectionManifest
+from nue.policy.config import MODEL_PRESETS, get_model_config
+from nue.sim.task import get_task
+from nue.train.manifest import CollectionManifest, DataLayout
 
 
 @dataclass(frozen=True)
@@ -138,10 +140,23 @@ def _run_dagger(train_cfg: TrainConfig, collect_cfg: CollectConfig, dagger: Dagg
     return rounds
 
 
+def layout_model(manifest: CollectionManifest, preferred: str, where="manifest.json") -> str:
+    """The model preset whose input layout a collection stores (``CollectConfig.model`` of its rollouts): ``preferred``
+    (the model DAgger trains) when it reads that layout, else the first preset that reads the collection's maps
+    (``nue_lean`` for a ``lean`` collection), so a policy that reads no maps can be rolled out on any collection."""
+    task = get_task(manifest.task)
+    if DataLayout.of(get_model_config(preferred).for_task(task)) == manifest.model_layout:
+        return preferred
+    for name, cfg in MODEL_PRESETS.items():
+        if cfg.uses_memory_maps and DataLayout.of(cfg.for_task(task)) == manifest.model_layout:
+            return name
+    raise DataError(where, f"no model preset reads this collection's layout {manifest.model_layout.to_dict()}")
+
+
 def collect_config_from_manifest(manifest: CollectionManifest, scene_dirs=(), device: str = "cpu",
-                                 where="manifest.json") -> CollectConfig:
-    """The collection config that reproduces an expert collection's training episodes (``where`` names the
-    manifest in errors)."""
+                                 where="manifest.json", model: str = "nue") -> CollectConfig:
+    """The collection config that reproduces an expert collection's training episodes, in the collection's layout
+    (:func:`layout_model`, preferring ``model``; ``where`` names the manifest in errors)."""
     houses: tuple[int, ...] = ()
     if not scene_dirs:
         prefix = f"{manifest.split}_"
@@ -149,6 +164,7 @@ def collect_config_from_manifest(manifest: CollectionManifest, scene_dirs=(), de
             raise DataError(where, "scenes are not generated houses: pass their folders with --scene")
         houses = tuple(int(n[len(prefix):]) for n in manifest.scenes)
     return CollectConfig(task=manifest.task, memory=manifest.memory, split=manifest.split,
+                         model=layout_model(manifest, model, where),
                          houses=houses, scene_dirs=tuple(str(d) for d in scene_dirs),
                          episodes_per_bin=manifest.episodes_per_bin, heldout_per_bin=0, seed=manifest.seed,
                          device=device, expert=manifest.expert, noise=manifest.noise)
