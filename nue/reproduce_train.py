@@ -12,8 +12,10 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
+from nue.errors import ConfigError
 from nue.jobs import Job, run_jobs
-from nue.policy.config import get_model_config
+from nue.nerf.config import get_memory
+from nue.policy.config import MODEL_PRESETS, get_model_config
 from nue.recipe import Recipe
 from nue.reproduce_marker import StageSummary, TrainRunSummary
 from nue.selection import select_run
@@ -41,9 +43,23 @@ class TrainJob:
     """Show the training progress bar (single process only)."""
 
 
+def collection_model(recipe: Recipe) -> str:
+    """The model preset whose input layout a recipe's demonstrations store: its first model that reads the memory's
+    maps at the memory preset's size (``nue`` for ``fast``, ``nue_gru_lean`` in v10), else the first preset that does
+    (a recipe of baselines only); every map-reading model of a recipe reads the same layout."""
+    memory = get_memory(recipe.memory)
+    size = (memory.map_height, memory.map_width)
+    for name in (*recipe.models, *MODEL_PRESETS):
+        cfg = get_model_config(name)
+        if cfg.uses_memory_maps and tuple(cfg.map_size) == size:
+            return name
+    raise ConfigError("recipe", f"no model preset reads the {recipe.memory!r} memory's {size} maps")
+
+
 def collect_config(recipe: Recipe, device: str = "cpu") -> CollectConfig:
-    """The demonstrations of a recipe (shared by all its training runs)."""
-    return CollectConfig(task=recipe.task, memory=recipe.memory, split=recipe.train_split, houses=recipe.train_houses,
+    """The demonstrations of a recipe (shared by all its training runs), in the layout of :func:`collection_model`."""
+    return CollectConfig(task=recipe.task, memory=recipe.memory, model=collection_model(recipe),
+                         split=recipe.train_split, houses=recipe.train_houses,
                          episodes_per_bin=recipe.episodes_per_bin, heldout_per_bin=recipe.heldout_per_bin,
                          seed=recipe.seed, device=device, expert=recipe.expert, noise=recipe.noise)
 

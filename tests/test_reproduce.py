@@ -460,6 +460,23 @@ def test_v10_is_v9_with_the_recurrent_nue_and_ablations(tmp_path):
         v10.replace(rows=(("nue_gru_lean", "nue_gru"),))
 
 
+def test_a_recipe_collects_in_the_layout_of_its_map_reading_models():
+    """The demonstrations store the maps at the recipe memory's size, through a model that reads them: v6 with
+    ``nue``, v9 ``nue_lean``, v10 ``nue_gru_lean``; a baselines-only recipe on ``lean`` the first preset that does.
+    (Before, every recipe collected as ``nue``, and ``lean`` recipes stopped at the collection: 45 x 60 != 30 x 40.)"""
+    from nue.nerf.config import get_memory
+    from nue.reproduce_train import collect_config, collection_model
+
+    assert [collection_model(get_recipe(n)) for n in ("v6", "v9", "v10")] == ["nue", "nue_lean", "nue_gru_lean"]
+    assert collection_model(get_recipe("v9").replace(models=("fr", "nrns"), swap_maps=(), last_mile=())) == "nue_lean"
+    for name in ("v6", "v9", "v10"):
+        recipe = get_recipe(name)
+        cfg, memory = get_model_config(collect_config(recipe).model), get_memory(recipe.memory)
+        assert tuple(cfg.map_size) == (memory.map_height, memory.map_width)
+        assert all(tuple(get_model_config(m).map_size) == tuple(cfg.map_size) for m in recipe.models
+                   if get_model_config(m).uses_memory_maps)
+
+
 def test_a_run_started_before_train_seeds_existed_resumes_and_refuses_seeds(tmp_path):
     """A recipe.json written before a field was added (here ``train_seeds``) counts it at its default: the same
     recipe resumes, one with seeds is refused."""
