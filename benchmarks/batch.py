@@ -1,14 +1,16 @@
-"""Lock-step batch benchmark: ms per episode-step of a real ``nue eval`` (in this process, one worker) of a checkpoint
+"""Lock-step batch benchmark: ms per episode-step of a real ``nue eval`` (in this process, one worker) of each method
 at ``--batch 1`` and ``--batch B`` (planning left out), and of the policy's part of it (``PolicyAgent.act`` / ``act_batch``).
+The methods (``--method``, repeatable, ``nue eval -c``'s spelling) default to the shipped NUE (``fast`` memory), the
+recurrent NUE on the ``lean`` memory (``results/gru/``), FR and the geodesic expert.
 
-The runs go B = 1, B, B = 1 again (the machine is shared: the second B = 1 run shows the drift), each on the same
+Per method the runs go B = 1, B, B = 1 again (the machine is shared: the second B = 1 run shows the drift), each on the same
 validation episodes (the first ``--episodes`` of ``--houses`` val houses, cut at ``--max-steps`` steps) into a
 fresh records file; the worker's caches (envs, policy, slot memories) are warmed by a run of one episode per house
 at batch size B first. Episode-steps are the records' steps; the load average is read before and after each run. Memory:
 :class:`nue.nerf.slots.MemoryList` (per-slot memories; only the policy forward is batched). Writes
 ``benchmarks/results/batch.json``.
 
-    nice -n 15 python benchmarks/batch.py [--checkpoint checkpoints/nue.pt] [--batch 8]
+    nice -n 15 python benchmarks/batch.py [--method nue=checkpoints/nue.pt ...] [--batch 8]
 """
 
 from __future__ import annotations
@@ -36,6 +38,9 @@ from nue.evaluate.runner import EvalConfig, run_eval  # noqa: E402
 from nue.policy.agent import PolicyAgent  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_METHODS = (f"nue={ROOT / 'checkpoints/nue.pt'}", f"nue_gru_lean={ROOT / 'results/gru/nue_gru_lean.pt'}",
+                   f"fr={ROOT / 'checkpoints/fr.pt'}", "expert")
+"""What ``make bench`` compares: NUE as shipped, the recurrent NUE on the lean memory, FR and the geodesic expert."""
 POLICY_S = [0.0]
 
 
@@ -54,7 +59,8 @@ def _timed(fn, total: list[float] = POLICY_S):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--checkpoint", default=str(ROOT / "checkpoints/nue.pt"))
+    ap.add_argument("--method", action="append", default=None,
+                    help=f"NAME=CHECKPOINT or an expert name, repeatable (default: {' '.join(DEFAULT_METHODS)}).")
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--houses", type=int, default=3)
     ap.add_argument("--episodes", type=int, default=8, help="Episodes per house.")
@@ -73,32 +79,39 @@ def main() -> None:
             shutil.copy(f, eps / f.name)
         base = EvalConfig(episodes_dir=str(eps), scenes_root=args.scenes_root, max_steps=args.max_steps)
 
-        def run(batch: int, name: str, max_episodes: int) -> dict:
+        def run(method: str, batch: int, name: str, max_episodes: int) -> dict:
             cfg = EvalConfig(**{**base.__dict__, "batch": batch, "max_episodes": max_episodes})
             POLICY_S[0] = PLAN_S[0] = 0.0
             load0 = os.getloadavg()[0]
             t = time.perf_counter()
-            out = run_eval([f"nue={args.checkpoint}"], tmp / f"{name}.jsonl", cfg, progress=False)
+            out = run_eval([method], tmp / f"{name}.jsonl", cfg, progress=False)
             wall = time.perf_counter() - t - PLAN_S[0]  # the episodes only, not the planning (houses, checks)
             steps = sum(json.loads(line)["steps"] for line in out.read_text().splitlines())
             row = {"batch": batch, "episodes": len(out.read_text().splitlines()), "episode_steps": steps,
                    "wall_s": round(wall, 2), "plan_s": round(PLAN_S[0], 2), "ms_per_episode_step": round(1000 * wall / steps, 2),
                    "policy_ms_per_episode_step": round(1000 * POLICY_S[0] / steps, 2),
                    "load_before": round(load0, 2), "load_after": round(os.getloadavg()[0], 2)}
-            print(name, json.dumps(row), flush=True)
+            print(method.split("=")[0], name, json.dumps(row), flush=True)
             return row
 
-        run(args.batch, "warm", 1)  # builds the worker's envs, agent and memories (slot 0's are B = 1's)
-        rows = [run(1, "b1", args.episodes), run(args.batch, "bB", args.episodes), run(1, "b1again", args.episodes)]
+        results = {}
+        for method in args.method or DEFAULT_METHODS:
+            key = method.split("=")[0]
+            run(method, args.batch, f"{key}_warm", 1)  # builds the worker's envs, agent and memories
+            rows = [run(method, 1, f"{key}_b1", args.episodes), run(method, args.batch, f"{key}_bB", args.episodes),
+                    run(method, 1, f"{key}_b1again", args.episodes)]
+            b1 = (rows[0]["ms_per_episode_step"] + rows[2]["ms_per_episode_step"]) / 2
+            ratio = round(b1 / rows[1]["ms_per_episode_step"], 3)
+            print(f"{key}: B=1 (mean of the two runs) / B={args.batch}: {ratio}x episode-steps per second", flush=True)
+            entry = {"method": method, "runs": rows, "speedup": ratio}
+            if "=" in method:
+                entry["forward_ms_per_row"] = forward_ms_per_row(method.split("=", 1)[1], args.batch)
+                print(f"{key}: policy forward alone, ms per row: {json.dumps(entry['forward_ms_per_row'])}", flush=True)
+            results[key] = entry
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    forward = forward_ms_per_row(args.checkpoint, args.batch)
-    b1 = (rows[0]["ms_per_episode_step"] + rows[2]["ms_per_episode_step"]) / 2
-    ratio = round(b1 / rows[1]["ms_per_episode_step"], 3)
-    print(f"B=1 (mean of the two runs) / B={args.batch}: {ratio}x episode-steps per second")
-    print(f"policy forward alone, ms per row: {json.dumps(forward)}")
-    write_result("batch", {"checkpoint": args.checkpoint, "houses": args.houses, "episodes_per_house": args.episodes,
-                           "max_steps": args.max_steps, "runs": rows, "speedup": ratio, "forward_ms_per_row": forward})
+    write_result("batch", {"batch": args.batch, "houses": args.houses, "episodes_per_house": args.episodes,
+                           "max_steps": args.max_steps, "methods": results})
 
 
 def forward_ms_per_row(checkpoint: str, batch: int, reps: int = 20) -> dict:
