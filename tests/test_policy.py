@@ -570,6 +570,16 @@ def test_nue_overfits_32_samples():
     assert angle_l1_loss(out.aux_angle, angles).item() < 0.5  # random guessing: pi / 2
 
 
+def _two_pasts(model, cfg, seed: int, time: int):
+    """Two input sequences that differ only in their first step, and the model's outputs on each from a fresh state."""
+    gen = torch.Generator().manual_seed(seed)
+    seq_a = random_input(cfg, 1, gen, time=time)
+    seq_b = PolicyInput.cat([PolicyInput.stack([random_input(cfg, 1, gen)]), seq_a.index(slice(1, None))])
+    with torch.no_grad():
+        return seq_a, seq_b, model.forward_sequence(seq_a, model.initial_state(1)), \
+            model.forward_sequence(seq_b, model.initial_state(1))
+
+
 def test_nue_gru_state_carries_information_and_resets():
     """NUE with a GRU after the fusion: a different past changes later logits, a reset erases it, step by step equals
     forward_sequence; without the GRU (``nue``) the config dict and modules are as before."""
@@ -579,13 +589,9 @@ def test_nue_gru_state_carries_information_and_resets():
     torch.manual_seed(0)
     model = build_model(cfg).eval()
     assert model.gru is not None and build_model(get_model_config("nue")).gru is None
-    gen = torch.Generator().manual_seed(4)
-    seq_a = random_input(cfg, 1, gen, time=3)
-    seq_b = PolicyInput.cat([PolicyInput.stack([random_input(cfg, 1, gen)]), seq_a.index(slice(1, None))])
+    seq_a, seq_b, out_a, out_b = _two_pasts(model, cfg, seed=4, time=3)
+    assert not torch.allclose(out_a.logits[1:], out_b.logits[1:], atol=1e-6)
     with torch.no_grad():
-        out_a = model.forward_sequence(seq_a, model.initial_state(1))
-        out_b = model.forward_sequence(seq_b, model.initial_state(1))
-        assert not torch.allclose(out_a.logits[1:], out_b.logits[1:], atol=1e-6)
         reset = torch.tensor([[False], [True], [False]])
         ra = model.forward_sequence(seq_a, model.initial_state(1), reset)
         rb = model.forward_sequence(seq_b, model.initial_state(1), reset)
@@ -611,12 +617,7 @@ def test_recurrent_ablations_differ_from_the_recurrent_nue_only_by_the_ablated_c
     cfg = get_model_config("abl_none_gru").replace(map_height=12, map_width=16, frame_height=24, frame_width=32)
     torch.manual_seed(0)
     model = build_model(cfg).eval()
-    gen = torch.Generator().manual_seed(5)
-    seq_a = random_input(cfg, 1, gen, time=2)
-    seq_b = PolicyInput.cat([PolicyInput.stack([random_input(cfg, 1, gen)]), seq_a.index(slice(1, None))])
-    with torch.no_grad():
-        out_a = model.forward_sequence(seq_a, model.initial_state(1))
-        out_b = model.forward_sequence(seq_b, model.initial_state(1))
+    _, _, out_a, out_b = _two_pasts(model, cfg, seed=5, time=2)
     assert not torch.allclose(out_a.logits[1:], out_b.logits[1:], atol=1e-6)
 
 
