@@ -205,6 +205,26 @@ def test_exploration_benchmark_runs_resumes_and_refuses_other_settings(tmp_path,
     assert one.returncode == 2 and "Traceback" not in one.stderr
 
 
+def test_exploration_summary_pools_training_seeds():
+    """``m`` and ``m@s1`` are two seeds of one method: one row of the seeds' mean, its ratio to the reference over
+    the starts both seeds ran (a start only seed 0 ran is left out)."""
+    from nue.evaluate.exploration import exploration_summary, format_exploration_markdown
+    from nue.sim.record import EpisodeRecord
+
+    def run(method, ep, curve):
+        return EpisodeRecord(ep, "s", "easy", False, 5.0, 1.0, 1.0, 1.0, 0.8, method=method,
+                             extra={"coverage": curve, "coverage_explorable": curve, "explorable_area": 10.0})
+
+    recs = [run("ref", e, [1.0, 2.0]) for e in "abc"]
+    recs += [run("m", e, [2.0, 4.0]) for e in "abc"] + [run("m@s1", e, [2.0, 8.0]) for e in "ab"]
+    rows = {r.method: r for r in exploration_summary(recs, reference="ref", steps=(1, 2))}
+    m = rows["m"]
+    assert (m.seeds, m.runs) == (2, 2) and m.area == {1: 2.0, 2: 6.0} and m.fraction[2] == pytest.approx(0.6)
+    assert m.ratio[2][0] == pytest.approx(3.0) and m.ratio[2][1:] == (2.0, 4.0)  # seeds' mean 4, 6 or 8 m² / 2 m²
+    assert rows["ref"].seeds == 1 and rows["ref"].ratio == {}
+    assert "| m | 2 x 2 seeds |" in format_exploration_markdown(list(rows.values()), "ref")
+
+
 def test_paired_outcome_differences():
     from nue.evaluate.handoff import format_outcome_differences, outcome_differences
     from nue.sim.record import EpisodeRecord

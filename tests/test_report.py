@@ -399,6 +399,18 @@ def test_the_two_level_bootstrap_sees_the_seeds_disagree():
         assert got == pytest.approx(want)
 
 
+def test_the_two_level_ratio_of_means():
+    """A's two seeds see 2 and 4 m² from every start, the reference's one seed 2 m²: the drawn A seeds' mean is 2, 3
+    or 4 m² whatever starts are drawn, so the ratio is 1.5 with 95% interval [1, 2]."""
+    from nue.evaluate.stats import seed_episode_ratio
+
+    a, b = np.stack([np.full(30, 2.0), np.full(30, 4.0)]), np.full((1, 30), 2.0)
+    r, lo, hi = seed_episode_ratio(a, b)
+    assert (r[0], lo[0], hi[0]) == (1.5, 1.0, 2.0)
+    r, lo, hi = seed_episode_ratio(b, a)  # the other way round: 2 / 3, between 2 / 4 and 2 / 2
+    assert r[0] == pytest.approx(2 / 3) and (lo[0], hi[0]) == (0.5, 1.0)
+
+
 def test_a_verdict_that_depends_on_the_seed_is_named():
     """f_u alone: seed 0 succeeds on all 30 episodes, seed 1 on none, like NUE (one run). Seed 0 vs NUE is resolved,
     seed 1 vs NUE not; pooled over seeds x episodes the interval is [0, +100] (not resolved)."""

@@ -25,7 +25,6 @@ import numpy as np
 from nue.errors import ConfigError
 from nue.evaluate.coverage import COVERAGE_KEY, pad_curves
 from nue.evaluate.eval_job import EvalJob, RunSettings
-from nue.evaluate.stats import paired_bootstrap
 from nue.jobs import Job, episode_seed, run_jobs
 from nue.output_lock import hold_output
 from nue.sim.episodes import read_episodes
@@ -115,70 +114,81 @@ def run_explore(methods: list[str], out, cfg: ExploreConfig, workers: int = 1, r
 
 @dataclass(frozen=True)
 class ExplorationRow:
-    """One method's seen area at the report steps."""
+    """One method's seen area at the report steps (with several training seeds: their runs pooled)."""
 
     method: str
     runs: int
+    """Starts in the row (with several seeds: the starts every seed ran)."""
     area: dict
-    """Step -> mean seen floor area, m²."""
+    """Step -> mean seen floor area, m² (with several seeds: the mean over starts of the seeds' mean)."""
     area_ci: dict
-    """Step -> (lo, hi) 95% bootstrap interval of the mean, m²."""
+    """Step -> (lo, hi) 95% bootstrap interval of the mean, m² (several seeds: two-level, seeds then starts)."""
     fraction: dict
     """Step -> mean over the runs of (seen area within the explorable floor) / (explorable floor area)."""
     ratio: dict
-    """Step -> (ratio of means to the reference, lo, hi) over the starts both ran (paired bootstrap); {} for the
-    reference itself or without one."""
+    """Step -> (ratio of means to the reference, lo, hi) over the starts both ran (paired bootstrap; with several
+    seeds on either side the two-level one, :func:`~nue.evaluate.stats.seed_episode_ratio`); {} for the reference
+    itself or without one."""
+    seeds: int = 1
+    """Training seeds pooled in the row (runs ``<method>@s<k>``, :func:`~nue.evaluate.table.split_seed`)."""
 
 
-def _curves(records: Sequence[EpisodeRecord], steps: int) -> dict[str, dict[str, np.ndarray]]:
-    by: dict[str, dict[str, np.ndarray]] = {}
+def _curves(records: Sequence[EpisodeRecord], steps: int) -> dict[str, dict[int, dict[str, np.ndarray]]]:
+    """Method key -> seed index -> start key -> (seen area, fraction of the explorable floor) curves, (2, steps)."""
+    from nue.evaluate.table import canonical_method, split_seed
+
+    by: dict[str, dict[int, dict[str, np.ndarray]]] = {}
     for r in records:
         cov = r.extra.get(COVERAGE_KEY)
         if cov is None:
             continue
-        key = f"{r.scene}/{r.episode_id}"
-        by.setdefault(r.method, {})[key] = pad_curves([cov], steps)[0]
+        inside, total = r.extra.get("coverage_explorable"), r.extra.get("explorable_area")
+        frac = pad_curves([inside], steps)[0] / total if inside is not None and total else np.full(steps, np.nan)
+        base, k = split_seed(r.method)
+        by.setdefault(canonical_method(base), {}).setdefault(k, {})[f"{r.scene}/{r.episode_id}"] = np.stack(
+            [pad_curves([cov], steps)[0], frac])
     return by
 
 
-def _ratio_ci(a: np.ndarray, b: np.ndarray, n_boot: int = 10_000, seed: int = 0) -> tuple[float, float, float]:
-    """Ratio of means mean(a) / mean(b) of paired runs and its percentile bootstrap interval (rows resampled)."""
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(0, len(a), size=(n_boot, len(a)))
-    ratios = a[idx].mean(axis=1) / np.maximum(b[idx].mean(axis=1), 1e-12)
-    lo, hi = np.quantile(ratios, [0.025, 0.975])
-    return float(a.mean() / max(b.mean(), 1e-12)), float(lo), float(hi)
+def _stack(seeds: Mapping[int, Mapping[str, np.ndarray]], keys: Sequence[str]) -> np.ndarray:
+    """(seeds, starts, 2, steps) curves of ``keys``."""
+    return np.stack([np.stack([runs[k] for k in keys]) for runs in seeds.values()])
+
+
+def _common(seeds: Mapping[int, Mapping[str, np.ndarray]]) -> set[str]:
+    return set.intersection(*(set(runs) for runs in seeds.values()))
 
 
 def exploration_summary(records: Sequence[EpisodeRecord], reference: str = "abl_at_cbam",
                         steps: Sequence[int] = REPORT_STEPS) -> list[ExplorationRow]:
-    """Per method (sorted), the :class:`ExplorationRow` at ``steps`` within the runs' length, and at that length."""
+    """Per method key (sorted; a method's training seeds ``<method>@s<k>`` pooled in one row), the
+    :class:`ExplorationRow` at ``steps`` within the runs' length, and at that length."""
+    from nue.evaluate.stats import seed_episode_bootstrap, seed_episode_ratio
+    from nue.evaluate.table import canonical_method
+
     length = max((len(r.extra.get(COVERAGE_KEY) or []) for r in records), default=0)
     steps = sorted({s for s in (*steps, length) if 0 < s <= length})
     curves = _curves(records, length)
-    fractions: dict[str, dict[str, np.ndarray]] = {}
-    for r in records:
-        inside, total = r.extra.get("coverage_explorable"), r.extra.get("explorable_area")
-        if inside is not None and total:
-            fractions.setdefault(r.method, {})[f"{r.scene}/{r.episode_id}"] = pad_curves([inside], length)[0] / total
-    ref = curves.get(reference)
+    ref = curves.get(canonical_method(reference))
+    cols = [s - 1 for s in steps]
     rows = []
     for m in sorted(curves):
-        keys = sorted(curves[m])
-        c = np.stack([curves[m][k] for k in keys])
-        f = np.stack([fractions.get(m, {}).get(k, np.full(length, np.nan)) for k in keys])
-        area, ci, frac, ratio = {}, {}, {}, {}
-        for s in steps:
-            v = c[:, s - 1]
-            mean, lo, hi = paired_bootstrap(v)
-            area[s], ci[s] = float(mean[0]), (float(lo[0]), float(hi[0]))
-            frac[s] = float(np.nanmean(f[:, s - 1])) if np.isfinite(f[:, s - 1]).any() else float("nan")
-            if ref is not None and m != reference:
-                both = [k for k in keys if k in ref]
-                if both:
-                    ratio[s] = _ratio_ci(np.array([curves[m][k][s - 1] for k in both]),
-                                         np.array([ref[k][s - 1] for k in both]))
-        rows.append(ExplorationRow(m, len(keys), area, ci, frac, ratio))
+        keys = sorted(_common(curves[m]))
+        c = _stack(curves[m], keys)  # (S, n, 2, steps)
+        area_runs = c[:, :, 0, cols]
+        mean, lo, hi = seed_episode_bootstrap(area_runs, np.zeros((1, *area_runs.shape[1:])))
+        with np.errstate(invalid="ignore"):
+            frac = np.nanmean(c[:, :, 1, cols].mean(axis=0), axis=0) if np.isfinite(c[:, :, 1]).any() else \
+                np.full(len(steps), np.nan)
+        ratio = {}
+        if ref is not None and curves[m] is not ref:
+            both = sorted(set(keys) & _common(ref))
+            if both:
+                r, rlo, rhi = seed_episode_ratio(_stack(curves[m], both)[:, :, 0, cols], _stack(ref, both)[:, :, 0, cols])
+                ratio = {s: (float(r[i]), float(rlo[i]), float(rhi[i])) for i, s in enumerate(steps)}
+        rows.append(ExplorationRow(m, len(keys), {s: float(mean[i]) for i, s in enumerate(steps)},
+                                   {s: (float(lo[i]), float(hi[i])) for i, s in enumerate(steps)},
+                                   {s: float(frac[i]) for i, s in enumerate(steps)}, ratio, seeds=len(curves[m])))
     return rows
 
 
@@ -197,5 +207,6 @@ def format_exploration_markdown(rows: Sequence[ExplorationRow], reference: str =
             ratio = r.ratio.get(s)
             rt = "–" if ratio is None else f"{ratio[0]:.2f} [{ratio[1]:.2f}, {ratio[2]:.2f}]"
             cells.append(f"{r.area[s]:.1f} [{lo:.1f}, {hi:.1f}], {r.fraction[s]:.2f}, {rt}")
-        lines.append(f"| {(labels or {}).get(r.method, r.method)} | {r.runs} | " + " | ".join(cells) + " |")
+        runs = str(r.runs) if r.seeds == 1 else f"{r.runs} x {r.seeds} seeds"
+        lines.append(f"| {(labels or {}).get(r.method, r.method)} | {runs} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

@@ -111,7 +111,10 @@ def exploration_section_markdown(name: str, records: Sequence[EpisodeRecord], re
             f"starts of `{name}`, the goal photo of another house (nothing to find; success never ends a run), seen floor "
             "area (m², mean and 95% bootstrap interval over the starts), the mean fraction of the start's traversable "
             f"floor seen, and the ratio of means to {method_label(reference)} (95% paired bootstrap over the starts). "
-            "`expert-explore`: frontier exploration on its own seen map; `random`: uniform random moves.\n\n"
+            "`expert-explore`: frontier exploration on its own seen map; `random`: uniform random moves."
+            + (" A method with several training seeds is one row: the seeds' mean over the starts every seed ran, its "
+               "interval and ratio a two-level bootstrap (seeds, then starts)." if any(r.seeds > 1 for r in rows) else "")
+            + "\n\n"
             f"{format_exploration_markdown(rows, reference, labels)}")
 
 
