@@ -83,7 +83,8 @@ def expert_cmd(
 EVAL = ConfigOptions(
     "nue.evaluate.runner:EvalConfig", Opt("episodes_dir", path=True), Opt("scenes_root", path=True), "task", "seed",
     Opt("device", check=A.device), "swap_maps", Opt("max_episodes", check=A.non_negative), Opt("per_bin", check=A.non_negative),
-    Opt("max_steps", check=A.non_negative), "skip_invalid", Opt("batch", check=A.positive))
+    Opt("max_steps", check=A.non_negative), "skip_invalid", Opt("temperature", check=A.non_negative),
+    Opt("batch", check=A.positive))
 
 
 @config_command

@@ -45,6 +45,9 @@ class RunSettings:
     last_mile: dict | None = None
     """The last-mile wrapper's settings (:meth:`nue.policy.last_mile.LastMileConfig.to_dict`) of a ``sling+``
     method; None otherwise (then left out of the stored form, as in records made before it existed)."""
+    temperature: float = 1.0
+    """Sampling temperature of a policy's actions (``nue eval --temperature``; 0 = argmax). Left out of the stored
+    form when 1 (the paper's sampling, as in records made before it existed)."""
     batch: int = 1
     """Lock-step slots of the worker that ran the episode (``nue eval --batch``); the policy's forward runs on this
     many rows, which changes its rounding. Left out of the stored form when 1 (as in records made before it existed)."""
@@ -55,8 +58,11 @@ class RunSettings:
         return hashlib.sha256(json.dumps(dataclasses.asdict(episode), sort_keys=True).encode()).hexdigest()[:16]
 
     def to_dict(self) -> dict:
-        """The record's ``extra['settings']`` (``last_mile`` only when set, ``batch`` only when > 1)."""
+        """The record's ``extra['settings']`` (``last_mile`` only when set, ``temperature`` only when not 1,
+        ``batch`` only when > 1)."""
         d = dataclasses.asdict(self)
+        if d["temperature"] == 1.0:
+            del d["temperature"]
         if d["last_mile"] is None:
             del d["last_mile"]
         if d["batch"] == 1:
@@ -110,3 +116,5 @@ class EvalJob:
     """Success never ends the episode; it runs to the step limit."""
     last_mile: Any = None
     """A ``sling+`` method: the :class:`nue.policy.last_mile.LastMileConfig` its agent is wrapped with; else None."""
+    temperature: float = 1.0
+    """Sampling temperature of a policy's actions (0 = argmax)."""

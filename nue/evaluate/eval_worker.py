@@ -83,8 +83,8 @@ def _env(job: EvalJob):
 
 def _policy(job: EvalJob, env):
     """The checkpoint's agent and memory, loaded once per worker (:func:`plan_eval` checked the houses)."""
-    return worker_cached(("policy", job.checkpoint, job.device, env.task.name),
-                         lambda: load_agent(job.checkpoint, env.task, job.device))
+    return worker_cached(("policy", job.checkpoint, job.device, env.task.name, job.temperature),
+                         lambda: load_agent(job.checkpoint, env.task, job.device, temperature=job.temperature))
 
 
 def eval_episode(job: Job) -> dict:
@@ -164,8 +164,8 @@ class _EpisodeRun:
             if slots > 1:  # one agent per slot on the shared model (own recurrent state and action sampling)
                 base = agent
                 make = (base.twin if isinstance(base, Twinnable)
-                        else lambda: load_agent(p.checkpoint, env.task, p.device)[0])
-                agent = worker_cached(("policy", p.checkpoint, p.device, env.task.name, slot, slots), make)
+                        else lambda: load_agent(p.checkpoint, env.task, p.device, temperature=p.temperature)[0])
+                agent = worker_cached(("policy", p.checkpoint, p.device, env.task.name, p.temperature, slot, slots), make)
             if p.other is not None and isinstance(memory, OnlineNeRF):
                 recorder = memory
                 if slots > 1:  # the slot memory may be in use: record the other episode's maps on a memory of its own

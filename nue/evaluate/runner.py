@@ -71,6 +71,9 @@ class EvalConfig:
     commit: LastMileConfig = COMMIT_LAST_MILE
     """Settings of the wrapper of ``commit+<name>`` methods: the last mile driven on the policy's own goal head
     (:mod:`nue.policy.commit`; stored in their records' settings)."""
+    temperature: float = 1.0
+    """Sampling temperature of the policies' actions: softmax(logits / temperature) (1 = the paper's eq. 14; 0 =
+    argmax; experts are unaffected). Stored in the policies' records' settings when not 1."""
     batch: int = 1
     """Episodes a worker runs side by side in lock step (one batched policy forward per step, a finished episode's
     slot refilled by the next); stored in the records' settings when > 1 (the forward's rounding depends on it)."""
@@ -136,12 +139,13 @@ def plan_eval(methods: list[str], cfg: EvalConfig, skipped: list | None = None) 
                     last_mile = cfg.last_mile
                 elif ckpt is not None and method.startswith(COMMIT_PREFIX):
                     last_mile = cfg.commit
-                settings = run_settings(cfg, digests.get(ckpt, method), ep, scene.content_hash, last_mile)
+                settings = run_settings(cfg, digests.get(ckpt, method), ep, scene.content_hash, last_mile,
+                                        temperature=cfg.temperature if ckpt is not None else 1.0)
                 jobs.append(Job(f"{method}{swap}/{scene.name}/{ep.episode_id}", EvalJob(
                     method=method + swap, checkpoint=ckpt, expert=EXPERT_METHODS.get(method, "") if ckpt is None else "",
                     scene=str(folder), episode=ep, other=other, task=cfg.task,
                     seed=episode_seed(cfg.seed, scene.name, ep.episode_id), device=cfg.device, coverage=cfg.coverage,
-                    max_steps=cfg.max_steps, settings=settings, last_mile=last_mile)))
+                    max_steps=cfg.max_steps, settings=settings, last_mile=last_mile, temperature=settings.temperature)))
     return jobs
 
 
@@ -205,13 +209,15 @@ def file_sha256(path: str) -> str:
 
 
 def run_settings(cfg: EvalConfig, agent: str, episode: Episode, scene_hash: str,
-                 last_mile: LastMileConfig | None = None) -> RunSettings:
+                 last_mile: LastMileConfig | None = None, temperature: float = 1.0) -> RunSettings:
     """The :class:`RunSettings` of one episode of a run: the checkpoint's content hash (or the expert's
     name), task preset, step limit, seed, maps swap, coverage, the episode itself, the scene's content hash,
-    the last-mile wrapper's settings (``sling+`` methods) and the lock-step batch size."""
+    the last-mile wrapper's settings (``sling+`` methods), the policy's action temperature and the lock-step batch
+    size."""
     return RunSettings(agent=agent, task=cfg.task, max_steps=cfg.max_steps, seed=cfg.seed, swap_maps=cfg.swap_maps,
                        coverage=cfg.coverage, episode=RunSettings.episode_digest(episode), scene=scene_hash,
-                       last_mile=None if last_mile is None else last_mile.to_dict(), batch=cfg.batch)
+                       last_mile=None if last_mile is None else last_mile.to_dict(), temperature=temperature,
+                       batch=cfg.batch)
 
 
 def recorded_settings(path: Path) -> dict[str, dict | None]:

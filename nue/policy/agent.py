@@ -84,14 +84,17 @@ class RandomAgent:
 
 
 class PolicyAgent:
-    """Acts with ``model`` (sampling from softmax(logits), or argmax if ``greedy``)."""
+    """Acts with ``model`` (sampling from softmax(logits / temperature), or argmax if ``greedy`` or at temperature 0)."""
 
-    def __init__(self, model: PolicyModel, greedy: bool = False, device: str | torch.device = "cpu", git_commit: str = ""):
+    def __init__(self, model: PolicyModel, greedy: bool = False, device: str | torch.device = "cpu", git_commit: str = "",
+                 temperature: float = 1.0):
         self.model = model.to(device).eval()
         self.git_commit = git_commit
         """The commit the weights were trained at ('' unknown); recorded with evaluation records."""
         self.config = model.config
         self.greedy = greedy
+        self.temperature = float(temperature)
+        """Sampling temperature of the action distribution (1 = the paper's eq. 14; 0 = argmax)."""
         self.device = torch.device(device)
         self.generator = torch.Generator(device="cpu")
         self.last_aux: float | None = None
@@ -135,16 +138,17 @@ class PolicyAgent:
         if out.goal_view is not None and out.goal_log_distance is not None:
             self.last_goal_view = float(torch.sigmoid(out.goal_view[0].float()))
             self.last_goal_distance = float(torch.exp(out.goal_log_distance[0].float()))
-        return int(choose_actions(out.logits, self.greedy, self.generator)[0])
+        return int(choose_actions(out.logits, self.greedy, self.generator, self.temperature)[0])
 
     def twin(self) -> "PolicyAgent":
         """Another agent on the same model (weights shared, own recurrent state and action sampling): one per
         slot of the lock-step loop, whose :meth:`act_batch` runs them in one forward."""
-        return PolicyAgent(self.model, greedy=self.greedy, device=self.device, git_commit=self.git_commit)
+        return PolicyAgent(self.model, greedy=self.greedy, device=self.device, git_commit=self.git_commit,
+                           temperature=self.temperature)
 
     def batch_key(self) -> tuple:
-        """Agents with equal keys share one forward in :meth:`act_batch` (same model object, greedy rule, device)."""
-        return (id(self.model), self.greedy, str(self.device))
+        """Agents with equal keys share one forward in :meth:`act_batch` (same model object, action rule, device)."""
+        return (id(self.model), self.greedy, self.temperature, str(self.device))
 
     @staticmethod
     def act_batch(agents: list["PolicyAgent"], obs_list: list, maps_list: list, rows: int = 0,
@@ -180,7 +184,7 @@ class PolicyAgent:
             if out.goal_view is not None and out.goal_log_distance is not None:
                 a.last_goal_view = float(torch.sigmoid(out.goal_view[p].float()))
                 a.last_goal_distance = float(torch.exp(out.goal_log_distance[p].float()))
-            actions.append(int(choose_actions(out.logits[p:p + 1], a.greedy, a.generator)[0]))
+            actions.append(int(choose_actions(out.logits[p:p + 1], a.greedy, a.generator, a.temperature)[0]))
         return actions
 
 

@@ -56,12 +56,15 @@ def detach_state(state: State) -> State:
     return None if state is None else tuple(s.detach() for s in state)
 
 
-def choose_actions(logits: Tensor, greedy: bool = False, generator: torch.Generator | None = None) -> Tensor:
-    """Actions (B,) long from ``logits`` (B, A): argmax if ``greedy``, else a sample from softmax(logits)
-    (eq. 14), drawn on the ``generator``'s device (the logits move there)."""
-    if greedy:
+def choose_actions(logits: Tensor, greedy: bool = False, generator: torch.Generator | None = None,
+                   temperature: float = 1.0) -> Tensor:
+    """Actions (B,) long from ``logits`` (B, A): argmax if ``greedy`` or ``temperature`` is 0, else a sample from
+    softmax(logits / temperature) (eq. 14 at temperature 1; below 1 the likelier actions gain), drawn on the
+    ``generator``'s device (the logits move there)."""
+    if greedy or temperature == 0:
         return logits.argmax(dim=-1)
-    probs = torch.softmax(logits.float().to(generator.device if generator is not None else logits.device), dim=-1)
+    logits = logits.float() if temperature == 1 else logits.float() / temperature
+    probs = torch.softmax(logits.to(generator.device if generator is not None else logits.device), dim=-1)
     return torch.multinomial(probs, 1, generator=generator)[:, 0]
 
 

@@ -225,15 +225,16 @@ def _load_policy(path, device) -> tuple[PolicyModel, PolicyHeader, dict]:
 
 
 def load_agent(checkpoint, task: TaskConfig, device: str | torch.device = "cpu", *, scenes: dict[str, str] | None = None,
-               memory: bool | None = None, greedy: bool | None = None
+               memory: bool | None = None, greedy: bool | None = None, temperature: float = 1.0
                ) -> tuple[PolicyAgent | NRNSAgent, OnlineNeRF | None]:
     """The policy agent of a checkpoint and its online NeRF memory (the stored config and fixed initial
     weights), both on ``device``, after :func:`check_compatible` with ``task`` and ``scenes``.
 
     ``memory``: None = a memory only when the model reads its maps, True = always (figures), False = never
-    (the caller brings its own). ``greedy``: None = the task's rule (``task.greedy``). The agent's
+    (the caller brings its own). ``greedy``: None = the task's rule (``task.greedy``); ``temperature``: of the
+    sampled actions (:func:`~nue.policy.base.choose_actions`; 0 = argmax). The agent's
     ``git_commit`` is the commit the weights were trained at. An NRNS distance network (kind ``nrns``) gives its
-    graph agent (:class:`nue.policy.nrns_agent.NRNSAgent`, deterministic; ``greedy`` does not apply).
+    graph agent (:class:`nue.policy.nrns_agent.NRNSAgent`, deterministic; ``greedy`` and ``temperature`` do not apply).
     """
     model, header, ckpt = _load_policy(checkpoint, device)
     check_compatible(header, checkpoint, task=task, scenes=scenes)
@@ -243,7 +244,7 @@ def load_agent(checkpoint, task: TaskConfig, device: str | torch.device = "cpu",
     if isinstance(model, DistanceNetwork):  # NRNS acts through its graph agent, not from action logits
         return NRNSAgent(model, device=device, git_commit=header.git_commit), nerf
     agent = PolicyAgent(model, greedy=task.greedy if greedy is None else greedy, device=device,
-                        git_commit=header.git_commit)
+                        git_commit=header.git_commit, temperature=temperature)
     return agent, nerf
 
 
