@@ -34,6 +34,12 @@ def non_negative(option: str, value: int | float) -> None:
         raise ConfigError(option, f"must be 0 or more, got {value}")
 
 
+def above_zero(option: str, value: float) -> None:
+    """``value`` must be > 0 (a weight or a scale)."""
+    if not value > 0:
+        raise ConfigError(option, f"must be above 0, got {value}")
+
+
 def probability(option: str, value: float) -> None:
     """``value`` must lie in [0, 1]."""
     if not 0.0 <= value <= 1.0:

@@ -49,7 +49,7 @@ TRAIN = ConfigOptions(
     Opt("precision", check=A.one_of("nue.train.bc:PRECISIONS")), "compile", Opt("map_dropout", check=A.probability),
     Opt("select", check=A.one_of("nue.train.bc:SELECTIONS")), Opt("select_episodes", path=True),
     Opt("select_candidates", check=A.positive), Opt("select_workers", check=A.positive),
-    Opt("init_from", path=True), Opt("warmup", check=A.non_negative))
+    Opt("init_from", path=True), Opt("warmup", check=A.non_negative), Opt("exploit_weight", check=A.above_zero))
 DAGGER = ConfigOptions(
     "nue.train.dagger:DaggerConfig", Opt("rounds", check=A.non_negative), Opt("start_from", flag="--start", path=True),
     Opt("beta0", flag="--beta", check=A.probability), Opt("max_factor", check=A.positive),

@@ -45,6 +45,22 @@ def test_goal_head_loss_by_hand():
     assert float(goal_head_loss(out, batch)) == pytest.approx(bce0, rel=1e-6)
 
 
+def test_action_loss_weighs_the_in_view_steps_by_hand():
+    """Two steps with equal class weights: cross-entropies ln 3 (uniform logits, goal not in view) and
+    ln(1 + 2 e^2) (the label's logit 2 below the others', in view). exploit_weight 3: (ln 3 + 3 ln(1 + 2 e^2)) / 4;
+    at weight 1 (or without labels) it is F.cross_entropy with the class weights."""
+    from nue.train.losses import action_loss
+
+    logits, action = torch.tensor([[0.0, 0.0, 0.0], [0.0, 2.0, 2.0]]), torch.tensor([1, 0])
+    view, w = torch.tensor([0, 1], dtype=torch.int8), torch.ones(3)
+    ce0, ce1 = math.log(3.0), math.log(1 + 2 * math.exp(2.0))
+    assert float(action_loss(logits, action, w, view, 3.0)) == pytest.approx((ce0 + 3 * ce1) / 4, rel=1e-6)
+    assert float(action_loss(logits, action, w, view, 1.0)) == pytest.approx((ce0 + ce1) / 2, rel=1e-6)
+    assert float(action_loss(logits, action, w, None, 3.0)) == pytest.approx((ce0 + ce1) / 2, rel=1e-6)
+    cw = torch.tensor([2.0, 1.0, 1.0])  # class weights multiply in: the in-view step's label 0 weighs 2 x 3
+    assert float(action_loss(logits, action, cw, view, 3.0)) == pytest.approx((ce0 + 6 * ce1) / 7, rel=1e-6)
+
+
 def test_in_view_weight_is_the_ratio_of_other_steps_to_in_view_steps():
     from nue.train.bc import in_view_weight
 

@@ -207,6 +207,7 @@ def test_the_v6_run_trained_every_model_as_the_recipe_says(model):
     folders = RunFolders(Path("/nowhere"), Path("data/scenes"), Path("episodes"))
     ours = dataclasses.asdict(train_config(get_recipe("v6"), model, folders, compile=True))
     ours.pop("goal_weight"), ours.pop("goal_balance")  # recorded only by models with the exploitation head (none of v6's)
+    assert ours.pop("exploit_weight") == 1.0  # recorded only when not 1
     paths = {"data", "out", "select_episodes", "select_scenes_root"}
     stored = {k: v for k, v in header.train_config.items() if k not in paths}
     assert stored.pop("precision_resolved") == "fp32"  # precision auto on a CPU without native bf16

@@ -109,3 +109,23 @@ def test_kill_9_mid_training_then_resume_equals_an_uninterrupted_run(tiny_demos,
     assert a["scheduler"] == b["scheduler"] and a["rng_states"] == b["rng_states"]
     assert a["sampler_states"] == b["sampler_states"]
     assert all(torch.equal(x, y) for x, y in zip(a["torch_rng_states"], b["torch_rng_states"]))
+
+
+def test_exploit_weight_changes_training_and_is_recorded(tiny_demos, tmp_path, capsys):
+    """``--exploit-weight 4`` (the in-view steps' action loss x 4): the same seed's weights come out otherwise than at
+    1, the checkpoint records it (a run at 1 does not), a resume at another weight is refused, 0 is a usage error."""
+    def args(out, *extra):
+        return ["train", "--data", str(tiny_demos), "--out", str(out), "--model", "nue", "--steps", "4",
+                "--batch-size", "4", "--warmup", "1", "--eval-every", "2", *extra]
+
+    plain, weighted = tmp_path / "plain", tmp_path / "weighted"
+    assert _nue_in_process(args(plain)) == 0, capsys.readouterr().err[-2000:]
+    assert _nue_in_process(args(weighted, "--exploit-weight", "4")) == 0, capsys.readouterr().err[-2000:]
+    a, b = load_checkpoint(plain / "last.pt"), load_checkpoint(weighted / "last.pt")
+    assert "exploit_weight" not in a["train_config"] and b["train_config"]["exploit_weight"] == 4.0
+    assert any(not torch.equal(a["model_state"][k], b["model_state"][k]) for k in a["model_state"])
+    capsys.readouterr()
+    assert _nue_in_process([*args(weighted, "--exploit-weight", "2"), "--resume"]) == 2
+    assert "exploit_weight" in capsys.readouterr().err
+    assert _nue_in_process(args(tmp_path / "zero", "--exploit-weight", "0")) == 2
+    assert "--exploit-weight" in capsys.readouterr().err

@@ -74,6 +74,10 @@ class TrainConfig:
     """Weigh the in-view steps of the exploitation head's cross-entropy by the training data's ratio of other steps to
     them (about 9 on the v6 demonstrations), so the rare positives drive the head; False: unweighted (the head's
     probability is then calibrated to the data's rate)."""
+    exploit_weight: float = 1.0
+    """Weight of the action cross-entropy on the steps with the goal in view (the exploring expert's switch; about a
+    tenth of the steps) against the others' 1 (:func:`~nue.train.losses.action_loss`): above 1 the exploitation phase
+    counts more. Needs a collection with ``goal_in_view`` labels; stored in the checkpoint only when not 1."""
     class_balance: float = 0.5
     """Class weights (n / n_c)^p normalised to mean 1: p = 0 none, 1 inverse frequency, 0.5 in between."""
     grad_clip: float = 5.0
@@ -156,7 +160,7 @@ def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainCo
         return None if x is None else x.float()
 
     out = PolicyOutput(out.logits.float(), f32(out.aux_angle), out.state, f32(out.goal_view), f32(out.goal_log_distance))
-    return bc_loss(out, batch, weights, cfg.aux_weight, cfg.goal_weight, goal_pos_weight)
+    return bc_loss(out, batch, weights, cfg.aux_weight, cfg.goal_weight, goal_pos_weight, cfg.exploit_weight)
 
 
 def _dist():
@@ -236,6 +240,9 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
     task = get_task(manifest.task)
     model_cfg = get_model_config(cfg.model).for_task(task)
     data.check_layout(model_cfg)
+    if cfg.exploit_weight != 1.0 and data.episodes and "goal_in_view" not in data.episodes[0]:
+        raise DataError(data.files[0], f"exploit_weight {cfg.exploit_weight} weighs the steps with the goal in view, "
+                                       "but this collection has no 'goal_in_view' labels (collect again)")
     weights = class_weights(data.action_counts(model_cfg.num_actions), cfg.class_balance)
     goal_pos_weight = in_view_weight(data) if model_cfg.goal_head and cfg.goal_balance else 1.0
 
@@ -268,6 +275,8 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
     stored_cfg = dataclasses.asdict(cfg)
     if not model_cfg.goal_head:  # only models with the exploitation head record its weight (older checkpoints' dicts)
         del stored_cfg["goal_weight"], stored_cfg["goal_balance"]
+    if cfg.exploit_weight == 1.0:  # as in checkpoints made before it existed
+        del stored_cfg["exploit_weight"]
     meta = policy_meta(task, manifest.memory, model_cfg, manifest.scenes, manifest.hash(),
                        {**stored_cfg, "precision_resolved": resolve_precision(cfg.precision, device)},
                        {"episodes": data.n_episodes, "steps": len(data),
@@ -326,11 +335,11 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
         drawn = next(it)
         if model_cfg.recurrent:
             eps, steps_, reset = drawn
-            batch = data.batch(eps, steps_, model_cfg, device)
+            batch = data.batch(eps, steps_, model_cfg, device, in_view=cfg.exploit_weight != 1.0)
             reset_t = torch.as_tensor(reset, device=device)
         else:
             eps, steps_ = drawn
-            batch = data.batch(eps[None], steps_[None], model_cfg, device)
+            batch = data.batch(eps[None], steps_[None], model_cfg, device, in_view=cfg.exploit_weight != 1.0)
             reset_t = torch.ones(batch.action.shape, dtype=torch.bool, device=device)
         batch = swap_maps(batch, rng, cfg.map_dropout)  # a no-op (no draws) for models without maps
         loss, ce, aux = forward_loss(net, model, batch, reset_t, weights, cfg, device, goal_pos_weight)

@@ -145,8 +145,9 @@ class DemoSet:
             counts += np.bincount(np.asarray(a["action"], dtype=np.int64), minlength=num_actions)[:num_actions]
         return counts
 
-    def batch(self, episodes: np.ndarray, steps: np.ndarray, model_cfg, device="cpu") -> Batch:
-        """Gather the given (episode, step) pairs, any leading shape, into a :class:`Batch`.
+    def batch(self, episodes: np.ndarray, steps: np.ndarray, model_cfg, device="cpu", in_view: bool = False) -> Batch:
+        """Gather the given (episode, step) pairs, any leading shape, into a :class:`Batch`; the goal-in-view and
+        distance labels for a model with the exploitation head or when ``in_view`` (the in-view-weighted loss).
 
         Reads one index array per episode in the batch (not one per sample); float16 arrays are widened
         and compact ones (:class:`~nue.train.compact.QuantizedArray`) decoded to float32 there.
@@ -172,7 +173,7 @@ class DemoSet:
         )
         action, angle = gather("action", np.int64), gather("goal_angle")
         view = dist = None
-        if model_cfg.goal_head:
+        if model_cfg.goal_head or in_view:
             view, dist = shaped(gather("goal_in_view")).reshape(shape), shaped(gather("goal_distance")).reshape(shape)
         return Batch(inp, action.reshape(shape).to(device), angle.reshape(shape).to(device),
                      goal_in_view=view, goal_distance=dist)

@@ -17,11 +17,15 @@ def class_weights(counts: np.ndarray, power: float) -> torch.Tensor:
     return torch.as_tensor(w / w.mean(), dtype=torch.float32)
 
 
-def bc_loss(out, batch, weights: torch.Tensor, aux_weight: float, goal_weight: float = 0.0, goal_pos_weight: float = 1.0):
+def bc_loss(out, batch, weights: torch.Tensor, aux_weight: float, goal_weight: float = 0.0, goal_pos_weight: float = 1.0,
+            exploit_weight: float = 1.0):
     """(total, cross-entropy, angle L1 or None) of a forward_sequence output against a batch; the total includes
-    ``goal_weight`` x :func:`goal_head_loss` when the model has the exploitation head."""
+    ``goal_weight`` x :func:`goal_head_loss` when the model has the exploitation head. The cross-entropy is
+    :func:`action_loss` (the in-view steps weighted ``exploit_weight``)."""
     logits = out.logits.reshape(-1, out.logits.shape[-1])
-    ce = F.cross_entropy(logits, batch.action.reshape(-1), weight=weights.to(logits.device))
+    ce = action_loss(logits, batch.action.reshape(-1), weights.to(logits.device),
+                     None if exploit_weight == 1.0 or batch.goal_in_view is None else batch.goal_in_view.reshape(-1),
+                     exploit_weight)
     total = ce
     if out.goal_view is not None and batch.goal_in_view is not None:
         total = total + goal_weight * goal_head_loss(out, batch, goal_pos_weight)
@@ -29,6 +33,21 @@ def bc_loss(out, batch, weights: torch.Tensor, aux_weight: float, goal_weight: f
         return total, ce, None
     aux = angle_l1_loss(out.aux_angle.reshape(-1), batch.goal_angle.reshape(-1))
     return total + aux_weight * aux, ce, aux
+
+
+def action_loss(logits: torch.Tensor, action: torch.Tensor, weights: torch.Tensor, in_view: torch.Tensor | None = None,
+                exploit_weight: float = 1.0) -> torch.Tensor:
+    """Class-weighted cross-entropy of ``logits`` (N, A) against the expert's ``action`` (N,): ``sum_i s_i w_{a_i}
+    ce_i / sum_i s_i w_{a_i}`` with class weights ``w`` and step weights s_i = ``exploit_weight`` on the steps with the
+    goal in view (``in_view`` (N,), the exploring expert's switch), 1 elsewhere. Without ``in_view`` (or at weight 1)
+    it is ``F.cross_entropy(..., weight=w)``.
+
+    Example: two steps with class weights 1, cross-entropies 1 (goal not in view) and 3 (in view), exploit_weight 3:
+    (1 + 3 x 3) / (1 + 3) = 2.5, against 2 unweighted."""
+    if in_view is None or exploit_weight == 1.0:
+        return F.cross_entropy(logits, action, weight=weights)
+    w = weights[action] * torch.where(in_view.reshape(-1) > 0.5, exploit_weight, 1.0).to(logits.dtype)
+    return (F.cross_entropy(logits, action, reduction="none") * w).sum() / w.sum()
 
 
 def goal_head_loss(out, batch, pos_weight: float = 1.0) -> torch.Tensor:
