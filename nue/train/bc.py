@@ -240,9 +240,10 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
     task = get_task(manifest.task)
     model_cfg = get_model_config(cfg.model).for_task(task)
     data.check_layout(model_cfg)
-    if cfg.exploit_weight != 1.0 and data.episodes and "goal_in_view" not in data.episodes[0]:
-        raise DataError(data.files[0], f"exploit_weight {cfg.exploit_weight} weighs the steps with the goal in view, "
-                                       "but this collection has no 'goal_in_view' labels (collect again)")
+    unlabelled = [f for f, e in zip(data.files, data.episodes) if "goal_in_view" not in e]
+    if cfg.exploit_weight != 1.0 and unlabelled:  # every file: merged roots (DAgger rollouts) may mix collections
+        raise DataError(unlabelled[0], f"exploit_weight {cfg.exploit_weight} weighs the steps with the goal in view, "
+                                       "but this episode file has no 'goal_in_view' labels (collect again)")
     weights = class_weights(data.action_counts(model_cfg.num_actions), cfg.class_balance)
     goal_pos_weight = in_view_weight(data) if model_cfg.goal_head and cfg.goal_balance else 1.0
 
