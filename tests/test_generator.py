@@ -209,6 +209,25 @@ def test_generate_split(tmp_path, monkeypatch):
         generate_split("tiny", tmp_path, progress=False)
 
 
+def test_ensure_house_keeps_the_copy_another_process_renamed_in_first(tmp_path, monkeypatch):
+    """Two evaluations starting on a machine without scenes both generate a missing house: the copy renamed
+    into place first is kept whole (never removed under the other's reader) and the late copy is dropped."""
+    monkeypatch.setitem(generator.SPLITS, "tiny", (SEEDS[0],))
+    real = generator.generate_house
+    winner = {}
+
+    def racing(seed, out, config=None):  # the other process finishes first, mid-way through this generation
+        winner["folder"] = real(seed, tmp_path / "tiny_00", config)
+        winner["stamp"] = (tmp_path / "tiny_00" / "mesh_z_up.obj").stat().st_mtime_ns
+        return real(seed, out, config)
+
+    monkeypatch.setattr(generator, "generate_house", racing)
+    folder = generator.ensure_house("tiny", 0, tmp_path)
+    assert folder == winner["folder"] and _meta(folder)["seed"] == SEEDS[0]
+    assert (folder / "mesh_z_up.obj").stat().st_mtime_ns == winner["stamp"]  # the first copy, untouched
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tiny_00"]  # the late temporary copy is gone
+
+
 def test_config_validation(tmp_path):
     with pytest.raises(ConfigError):
         generate_house(1, tmp_path, HouseConfig(door_width=(1.2, 0.9)))

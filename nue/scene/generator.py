@@ -274,17 +274,25 @@ def _is_ours(folder: Path) -> bool:
         return False
 
 
-def _generate_into(folder: Path, seed: int, config: HouseConfig) -> Path:
-    """Generate into a temporary sibling folder and rename it to ``folder`` (replacing it if present)."""
+def _generate_into(folder: Path, seed: int, config: HouseConfig, replace: bool = False) -> Path:
+    """Generate into a temporary sibling folder and rename it to ``folder``. With ``replace`` a folder already
+    there is replaced (``--force``); without, a folder another process renamed into place while this one was
+    generating wins and this copy is dropped (several evaluations may start on a machine without scenes, and a
+    reader must never see a house half-removed)."""
     root = folder.parent
     root.mkdir(parents=True, exist_ok=True)
     _remove_stale_temps(root, folder.name)
     tmp = root / f".{folder.name}.tmp-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     generate_house(seed, tmp, config)
-    if folder.exists():
+    if replace and folder.exists():
         shutil.rmtree(folder)
-    os.replace(tmp, folder)
+    try:
+        os.rename(tmp, folder)  # atomic; fails if another process's copy is already in place
+    except OSError:
+        if not folder.exists():
+            raise
+        shutil.rmtree(tmp, ignore_errors=True)
     return folder
 
 
@@ -348,7 +356,7 @@ def generate_split(split: str, out_root: str | Path, config: HouseConfig | None 
                     else "it is not a house nue generated: move it away or use another --out")
             raise SceneError(folder, f"{problem}; {hint}")
         else:
-            _generate_into(folder, seed, house_cfg)
+            _generate_into(folder, seed, house_cfg, replace=problem is not None)
             status = "regenerated" if problem else "generated"
         paths.append(folder)
         if progress:
@@ -366,7 +374,7 @@ def ensure_house(split: str, index: int, root: str | Path, config: HouseConfig |
     seed = SPLITS[split][index]
     folder = Path(root) / f"{split}_{index:02d}"
     if not folder.exists():
-        return _generate_into(folder, seed, config)
+        _generate_into(folder, seed, config)
     problem = house_problem(folder, seed, config)
     if problem:
         raise SceneError(folder, f"{problem}; regenerate it with `nue scenes generate --split {split} --out {root} "
