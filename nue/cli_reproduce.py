@@ -14,9 +14,11 @@ from nue.outputs import check_output_dir, check_output_file
 
 def reproduce_cmd(
     out: Path = typer.Option(Path("runs/reproduce"), help="Run folder (recipe, demonstrations, runs, records, report)."),
-    recipe: str = typer.Option("v6", help="Recipe preset (nue.recipe.RECIPES): v6 (the shipped checkpoints': v5 with "
-                                          "256k samples per model), v7 (v6 with 3 training seeds for nue, abl_at_cbam "
-                                          "(no f_u), abl_none and fr), v5 (50 min per model), v3 or quick."),
+    # "v10" is nue.recipe.DEFAULT_RECIPE (a test checks; importing it would load torch for every command)
+    recipe: str = typer.Option("v10", help="Recipe preset (nue.recipe.RECIPES): v10 (the default: a recurrent NUE and "
+                                           "ablations on the lean memory, 3 seeds for the compared rows, VGM, NRNS and "
+                                           "the SLING rows; ~24 h on 2 cores), v6 (the shipped checkpoints' and "
+                                           "RESULTS.md's; ~10 h), v7, v8, v9, v5, v3 or quick."),
     quick: bool = typer.Option(False, help="Tiny everything (the quick recipe): an end-to-end check in about a minute."),
     scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the houses are (generated if missing)."),
     episodes_root: Path = typer.Option(Path("episodes"), help="The committed episode sets (val, val252, val_plain, select)."),

@@ -5,13 +5,16 @@ The time estimate of a recipe, stage by stage (``estimate``), is :mod:`nue.recip
 A recipe fixes everything that changes the results: the demonstrations (expert, DART noise, episodes per
 bin), the models and their training (budget in wall-clock minutes on one core or in samples, batch,
 precision, map dropout, closed-loop selection, optional DAgger), and the evaluation sets. How the run is
-executed (worker processes, a Ray cluster, folders) is not part of it. ``v6``, the default, is the recipe of the
-shipped ``checkpoints/*.pt`` (``checkpoints/README.md``): ``v5`` with a budget of 256,000 samples per model, the same
-on any machine. ``v7`` is ``v6`` with 3 training seeds for NUE, the no-f_u and all-off ablations and FR
+executed (worker processes, a Ray cluster, folders) is not part of it. ``v10``, the default (``DEFAULT_RECIPE``), is
+the recipe chosen in issue 37: a recurrent NUE and its ablations on the ``lean`` memory, 3 training seeds for the
+compared rows, the memory baselines and the SLING rows. ``v6`` is the recipe of the shipped ``checkpoints/*.pt``
+(``checkpoints/README.md``) and of today's RESULTS.md: ``v5`` with a budget of 256,000 samples per model, the same on
+any machine. ``v7`` is ``v6`` with 3 training seeds for NUE, the no-f_u and all-off ablations and FR
 (``Recipe.train_seeds``: a row of Table I is then the seeds' runs). ``v5`` trains each model for 50 minutes on one
 core (its models are ``results/v5/checkpoints/``), ``v3`` for 34 minutes with three snapshots competing in the
-selection; ``v8`` is ``v7`` with the SLING rows (NUE, FR and Nav-A3C wrapped in the last-mile module); ``quick`` is tiny
-everything, for CI (with 2 training seeds of NUE and its SLING row, so CI runs those paths end to end).
+selection; ``v8`` is ``v7`` with the SLING rows (NUE, FR and Nav-A3C wrapped in the last-mile module); ``v9`` is
+``v8`` on the ``lean`` memory with VGM and NRNS; ``quick`` is tiny everything, for CI (with 2 training seeds of NUE
+and its SLING row, so CI runs those paths end to end).
 """
 
 from __future__ import annotations
@@ -342,10 +345,11 @@ V10 = V9.replace(name="v10", models=TABLE_I_MODELS_GRU_LEAN,
                  train_seeds=(("nue_gru_lean", 3), ("abl_at_cbam_gru_lean", 3), ("abl_none_gru_lean", 3), ("fr", 3),
                               ("nav_a3c", 3), ("vgm", 3), ("nrns", 3)),
                  swap_maps=("nue_gru_lean",), last_mile=("nue_gru_lean", "fr", "nav_a3c"))
-"""v9 with a recurrent NUE (issue 37, item 2: ``nue_gru_lean`` reached 83.3% on val252 in 2 training seeds against
-reactive ``nue_lean``'s 78.0%, results/gru/README.md) and its ablations carrying the same state, so an ablation row
-differs from NUE only by the components the paper switches off. A candidate, not the default; recurrent models train
-on ``batch_size // seq_len`` sequences, the same samples per step."""
+"""v9 with a recurrent NUE and its ablations carrying the same state, so an ablation row differs from NUE only by the
+components the paper switches off; the default (``DEFAULT_RECIPE``). Why it was chosen (issue 37): ``nue_gru_lean``
+reached 83.3% on val252 in each of 3 training seeds against reactive ``nue_lean``'s 77.8 / 78.2 / 79.0%, +5.0 points
+[+0.4, +9.8] pooled over seeds x episodes (results/gru/README.md); no other change to the hand-off measured better.
+Recurrent models train on ``batch_size // seq_len`` sequences, the same samples per step."""
 
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
@@ -361,12 +365,14 @@ RECIPES: dict[str, Recipe] = {
         seq_len=2, warmup=1, precision="fp32", select="accuracy", eval_houses=(0,), eval_max_episodes=1,
         eval_max_steps=5, experts=("expert",), train_seeds=(("nue", 2),), last_mile=("nue",)),
 }
-"""Named recipes: ``v6`` (the default and the shipped checkpoints': v5 with 256k samples per model instead of 50
-minutes), ``v7`` (v6 with 3 training seeds for NUE, abl_at_cbam, abl_none and FR), ``v8`` (v7 with the SLING rows of
-NUE, FR and Nav-A3C), ``v9`` (a candidate: v8 on the lean memory with VGM and NRNS, 3 seeds for 7 rows), ``v10`` (a candidate: v9 with a
-recurrent NUE and ablations), ``v5``, ``v3``
-(docs/history/checkpoints.md) and ``quick`` (CI; 2 training seeds of NUE, and its
-SLING row)."""
+"""Named recipes: ``v10`` (the default: v9 with a recurrent NUE and ablations), ``v6`` (the shipped checkpoints' and
+RESULTS.md's: v5 with 256k samples per model instead of 50 minutes), ``v7`` (v6 with 3 training seeds for NUE,
+abl_at_cbam, abl_none and FR), ``v8`` (v7 with the SLING rows of NUE, FR and Nav-A3C), ``v9`` (v8 on the lean memory
+with VGM and NRNS, 3 seeds for 7 rows), ``v5``, ``v3`` (docs/history/checkpoints.md) and ``quick`` (CI; 2 training
+seeds of NUE, and its SLING row)."""
+
+DEFAULT_RECIPE = "v10"
+"""What ``nue reproduce`` runs without ``--recipe``."""
 
 
 def get_recipe(name: str) -> Recipe:

@@ -152,7 +152,7 @@ def test_a_rerun_with_another_recipe_is_refused(run):
     out, _, _, _, args = run
     with pytest.raises(ConfigError, match="noise"):
         reproduce(get_recipe("quick").replace(noise=0.1), out, echo=lambda s: None)
-    code, _ = _nue(*[a for a in args if a != "--quick"])  # the default recipe, v6, into the quick run's folder
+    code, _ = _nue(*[a for a in args if a != "--quick"])  # the default recipe, v10, into the quick run's folder
     assert code == 2
     assert json.loads((out / "recipe.json").read_text())["recipe"]["name"] == "quick"
 
@@ -193,7 +193,7 @@ def test_v5_trains_as_the_v5_checkpoints_were_trained(model):
     v5, v3 = get_recipe("v5"), get_recipe("v3")
     assert (v5.expert, v5.noise, v5.episodes_per_bin, v5.heldout_per_bin) == (v3.expert, v3.noise, 6, 1)
     v6 = get_recipe("v6")
-    assert next(iter(RECIPES)) == "v6" and v6 == v5.replace(name="v6", train_minutes=0.0, train_samples=256_000)
+    assert v6 == v5.replace(name="v6", train_minutes=0.0, train_samples=256_000)
     assert {m: v6.train_steps(m) for m in ("nue", "fr", "nav_a3c")} == {"nue": 4000, "fr": 4000, "nav_a3c": 4000}
     assert train_config(v6, "nue", folders).time_budget_s == 0 and train_config(v6, "nav_a3c", folders).steps == 4000
 
@@ -318,6 +318,22 @@ def test_a_seed_index_gives_a_run_name_and_a_training_seed():
     assert canonical_method("nue@s1") == "nue@s1" and canonical_method(split_seed("NUE (full)@s1")[0]) == "nue"
     assert not is_earlier_recipe("nue@s1") and not is_earlier_recipe("abl_fu@s2+swap")
     assert is_earlier_recipe("nue_v5a") and is_earlier_recipe("nue_v6@s1+swap")
+
+
+def test_the_default_recipe_is_v10_the_recurrent_nue(tmp_path):
+    """Issue 37's choice: without --recipe `nue reproduce` runs v10 (the recurrent NUE, its recurrent ablations, 3 seeds
+    for the compared rows); the command's default is nue.recipe.DEFAULT_RECIPE."""
+    import inspect
+
+    from nue.cli_reproduce import reproduce_cmd
+    from nue.recipe import DEFAULT_RECIPE
+
+    assert DEFAULT_RECIPE == "v10" and inspect.signature(reproduce_cmd).parameters["recipe"].default.default == DEFAULT_RECIPE
+    v10 = get_recipe(DEFAULT_RECIPE)
+    assert v10.memory == "lean" and dict(v10.rows)["nue_gru_lean"] == "nue" and get_model_config("nue_gru_lean").recurrent
+    assert dict(v10.train_seeds)["nue_gru_lean"] == 3 and dict(v10.train_seeds)["abl_at_cbam_gru_lean"] == 3
+    code, out = _nue("reproduce", "--out", str(tmp_path / "none"), "--workers", "2", "--estimate")
+    assert code == 0 and out.startswith("recipe 'v10', 2 worker(s):") and "24 runs (models x seeds)" in out
 
 
 def test_v7_is_v6_with_three_seeds_for_four_models_and_v6_is_unchanged():
