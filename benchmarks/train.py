@@ -31,7 +31,8 @@ from nue.nerf.config import get_memory  # noqa: E402
 from nue.policy import build_model  # noqa: E402
 from nue.policy.config import get_model_config  # noqa: E402
 from nue.sim.task import get_task  # noqa: E402
-from nue.train.bc import SequenceForward, TrainConfig, class_weights, forward_loss, resolve_precision  # noqa: E402
+from nue.train.bc import TrainConfig, class_weights, resolve_precision  # noqa: E402
+from nue.train.step import SequenceForward, forward_loss  # noqa: E402
 from nue.train.manifest import data_layout  # noqa: E402
 from nue.train.dataset import BufferSampler, DemoSet  # noqa: E402
 from nue.train.hardware import cpu_has_native_bf16  # noqa: E402

@@ -542,7 +542,8 @@ def test_bf16_training_step_is_unchanged_by_casting_the_images_first(name, monke
     from nue.policy import PolicyInput, build_model
     from nue.policy.config import get_model_config
     from nue.sim.task import get_task
-    from nue.train.bc import TrainConfig, class_weights, forward_loss
+    from nue.train.bc import TrainConfig, class_weights
+    from nue.train.step import forward_loss
     from nue.train.dataset import Batch
 
     cfg = get_model_config(name).for_task(get_task("paper"))

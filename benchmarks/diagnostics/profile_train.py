@@ -28,7 +28,8 @@ from train import BATCH, synthetic_collection  # noqa: E402
 from nue.policy import build_model  # noqa: E402
 from nue.policy.config import get_model_config  # noqa: E402
 from nue.sim.task import get_task  # noqa: E402
-from nue.train.bc import SequenceForward, TrainConfig, class_weights, forward_loss  # noqa: E402
+from nue.train.bc import TrainConfig, class_weights  # noqa: E402
+from nue.train.step import SequenceForward, forward_loss  # noqa: E402
 from nue.train.dataset import BufferSampler, DemoSet  # noqa: E402
 
 

@@ -5,7 +5,8 @@ Reads top to bottom: config, distributed setup, data, model, optimiser and sched
 (with TensorBoard scalars under ``losses/``, ``metrics/``, ``charts/``), held-out evaluation and
 atomic checkpoints (``last.pt`` to resume, ``best.pt`` by held-out action accuracy — model selection
 on held-out episodes of the training houses). Every model trains through ``forward_sequence`` on
-(T, B) batches (T = 1 for reactive models), so the loop never branches on the model type.
+(T, B) batches (T = 1 for reactive models), so the loop never branches on the model type; one step's forward
+and loss are :mod:`nue.train.step`'s.
 Multi-process data parallel: launch with ``torchrun``; ranks split each batch (gloo on CPU, nccl on GPU).
 """
 
@@ -29,13 +30,13 @@ from nue.jobs import fail_point
 from nue.output_lock import hold_output
 from nue.policy import build_model
 from nue.policy.accuracy import held_out_accuracy
-from nue.policy.base import PolicyOutput
 from nue.policy.checkpoint import PolicyHeader, load_checkpoint, policy_meta, resume_mismatches, save_checkpoint
 from nue.policy.config import get_model_config
 from nue.sim.task import get_task
 from nue.train.losses import bc_loss, class_weights, goal_head_loss, in_view_weight  # noqa: F401  (re-exported)
 from nue.train.dataset import BufferSampler, DemoSet, SequenceSampler, data_roots, swap_maps
 from nue.train.hardware import check_compile, resolve_precision
+from nue.train.step import SequenceForward, forward_loss
 
 
 @dataclass(frozen=True)
@@ -146,21 +147,6 @@ class TrainConfig:
 PRECISIONS = ("auto", "fp32", "bf16")
 SELECTIONS = ("accuracy", "closed_loop")
 BUDGET_CLOCKS = ("wall", "cpu")
-
-
-def forward_loss(net, model, batch, reset_t, weights: torch.Tensor, cfg: TrainConfig, device: torch.device,
-                 goal_pos_weight: float = 1.0):
-    """One training forward: (total, cross-entropy, angle L1 or None). Under ``bf16`` the network runs in
-    bfloat16 autocast and the loss is taken on its outputs cast back to float32."""
-    bf16 = resolve_precision(cfg.precision, device) == "bf16"
-    inp = batch.inp.with_image_dtype(torch.bfloat16) if bf16 else batch.inp  # the same numbers, half the bytes
-    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
-        out = net(inp, model.initial_state(reset_t.shape[1], device), reset_t)
-    def f32(x):
-        return None if x is None else x.float()
-
-    out = PolicyOutput(out.logits.float(), f32(out.aux_angle), out.state, f32(out.goal_view), f32(out.goal_log_distance))
-    return bc_loss(out, batch, weights, cfg.aux_weight, cfg.goal_weight, goal_pos_weight, cfg.exploit_weight)
 
 
 def _dist():
@@ -413,14 +399,3 @@ def _pretrain_embedding(model, data: DemoSet, model_cfg, seed: int, device, writ
     pretrain_embedding(model.embed, demo_pairs(data, c, c.embed_window, device), c.embed_steps, c.embed_batch,
                        c.embed_temperature, c.embed_lr, seed, tick)
     bar.close()
-
-
-class SequenceForward(torch.nn.Module):
-    """``forward`` = the policy's ``forward_sequence``, so DistributedDataParallel can wrap it."""
-
-    def __init__(self, model):
-        super().__init__()
-        self.model = model
-
-    def forward(self, inp, state, reset_mask):
-        return self.model.forward_sequence(inp, state, reset_mask)
