@@ -587,8 +587,8 @@ def test_panorama_model_collects_trains_and_acts(houses, tmp_path):
 
     pano_mem = TINY.replace(name="tiny_pano", panorama_headings=8)
     out = tmp_path / "demos"
-    collect(out, CollectConfig(scene_dirs=(str(houses[0]),), episodes_per_bin=1, heldout_per_bin=0, memory=pano_mem),
-            tmp_path / "scenes", workers=1, progress=False)
+    collect(out, CollectConfig(scene_dirs=(str(houses[0]),), episodes_per_bin=1, heldout_per_bin=0, memory=pano_mem,
+                               model="nue_pano"), tmp_path / "scenes", workers=1, progress=False)  # in its own layout
     ep = DemoSet(out, "train").episodes[0]
     assert ep["panorama"].shape == (len(ep["action"]), 8, 6, 8) and float(np.asarray(ep["panorama"]).max()) > 0
     res = train(TrainConfig(data=str(out), out=str(tmp_path / "run"), model="nue_pano", steps=3, batch_size=4,

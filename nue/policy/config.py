@@ -326,13 +326,13 @@ LEAN_MAP_SIZE: tuple[int, int] = (30, 40)
 MODEL_PRESETS.update({f"{m}_gru": MODEL_PRESETS[m].replace(name=f"{m}_gru", gru_dim=GRU_DIM) for m in ABLATION_PRESETS})
 MODEL_PRESETS.update({f"{m}_lean": MODEL_PRESETS[m].replace(name=f"{m}_lean", map_height=LEAN_MAP_SIZE[0],
                                                              map_width=LEAN_MAP_SIZE[1])
-                      for m in ("nue", "nue_gru", "nue_pano", *ABLATION_PRESETS,
+                      for m in ("nue", "nue_gru", "nue_pano", "nue_pano_gru", *ABLATION_PRESETS,
                                 *(f"{a}_gru" for a in ABLATION_PRESETS))})
 """Named model configs. The five ``abl_*`` rows and ``nue`` are paper Table I's ablation block. ``nue_gru`` is NUE
 with a recurrent state after the fusion; each ``abl_*_gru`` is an ablation with the same state, the ablation block of
-a recurrent NUE (the ablated components are switched off, the state kept). Each of these, and ``nue_pano``, also has a
-``<name>_lean`` twin that reads the ``lean`` memory preset's 30 x 40 maps (collect with ``--memory lean``, or
-``lean_pano`` for ``nue_pano_lean``; issue 38); the baselines read no maps and train on any collection."""
+a recurrent NUE (the ablated components are switched off, the state kept). Each of these, ``nue_pano`` and
+``nue_pano_gru``, also has a ``<name>_lean`` twin that reads the ``lean`` memory preset's 30 x 40 maps (collect with
+``--memory lean``, or ``lean_pano`` for ``nue_pano_lean`` and ``nue_pano_gru_lean``; issue 38); the baselines read no maps and train on any collection."""
 
 
 def get_model_config(name: str | ModelConfig) -> ModelConfig:

@@ -320,9 +320,9 @@ class DemoRecorder:
     def __call__(self, s) -> None:
         cfg = self.config
         maps = s.maps
-        inp = prepare_input(s.obs["rgb"], s.obs["depth"], s.obs["goal"], maps.i_u, maps.i_cog, cfg)
-        label = expert_label(self.agent)
         panorama = getattr(maps, "panorama", None)
+        inp = prepare_input(s.obs["rgb"], s.obs["depth"], s.obs["goal"], maps.i_u, maps.i_cog, cfg, panorama=panorama)
+        label = expert_label(self.agent)
         if panorama is not None:  # memory presets with a panorama: kept for the models that read it
             self.panorama.append(panorama.detach().cpu().numpy().astype(np.float16))
         self.steps.append({
