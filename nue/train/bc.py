@@ -1,12 +1,11 @@
 """``nue train``: behaviour cloning on demonstrations — cross-entropy on the expert's actions (class
 balanced) plus lambda * L1 on the goal angle when the model has the auxiliary head.
 
-Reads top to bottom: config, distributed setup, data, model, optimiser and schedule, resume, loop
-(with TensorBoard scalars under ``losses/``, ``metrics/``, ``charts/``), held-out evaluation and
-atomic checkpoints (``last.pt`` to resume, ``best.pt`` by held-out action accuracy — model selection
-on held-out episodes of the training houses). Every model trains through ``forward_sequence`` on
-(T, B) batches (T = 1 for reactive models), so the loop never branches on the model type; one step's forward
-and loss are :mod:`nue.train.step`'s.
+Reads top to bottom: config, distributed setup, data, model, optimiser and schedule, resume, loop (with TensorBoard
+scalars under ``losses/``, ``metrics/``, ``charts/``), held-out evaluation and atomic checkpoints (``last.pt`` to
+resume, ``best.pt`` by held-out action accuracy — model selection on held-out episodes of the training houses). Every
+model trains through ``forward_sequence`` on (T, B) batches (T = 1 for reactive models), so the loop never branches on
+the model type; one step's forward and loss are :mod:`nue.train.step`'s.
 Multi-process data parallel: launch with ``torchrun``; ranks split each batch (gloo on CPU, nccl on GPU).
 """
 
