@@ -33,7 +33,8 @@ def _bits(option: str, bits: int) -> None:
 
 # --- the configs' options: defaults and help are the dataclass fields' (nue.cli_config) ----------------
 COLLECT = ConfigOptions(
-    "nue.train.collect:CollectConfig", Opt("scene_dirs", flag="--scene", path=True), "houses", "task", "memory",
+    "nue.train.collect:CollectConfig", Opt("scene_dirs", flag="--scene", path=True),
+    Opt("split", check=A.one_of("nue.scene.generator:TRAINING_SPLITS")), "houses", "task", "memory",
     "model", Opt("episodes_per_bin", check=A.positive), Opt("heldout_per_bin", check=A.non_negative), "seed",
     Opt("device", check=A.device), Opt("expert", check=A.one_of("nue.policy.agent:EXPERT_KINDS")),
     Opt("noise", check=A.probability), Opt("memory_lag", check=A.non_negative))

@@ -53,7 +53,7 @@ def reproduce_cmd(
 
 
 def make_set_cmd(
-    name: str = typer.Argument(..., help="Episode set (nue.sim.episode_sets.EPISODE_SETS): val, val252, val_plain, val_pale."),
+    name: str = typer.Argument(..., help="Episode set (nue.sim.episode_sets.EPISODE_SETS): val, val252, val_plain, val_pale; select, select_diverse (closed-loop selection)."),
     root: Path = typer.Option(Path("episodes"), help="Folder of the sets: writes ROOT/NAME/, reads the set it extends there."),
     scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the houses are (generated if missing)."),
     houses: str = typer.Option("", help="Comma-separated house indices (default: all of the split)."),

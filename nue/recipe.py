@@ -33,7 +33,7 @@ from nue.recipe_estimate import (  # noqa: F401  (re-exported: the time estimate
     CostModel, StageEstimate, collection_episodes, episode_counts, estimate, format_duration, format_estimate,
 )
 from nue.sim.episode_sets import get_episode_set
-from nue.scene.generator import SPLITS
+from nue.scene.generator import SPLITS, TRAINING_SPLITS
 
 TABLE_I_KEYS: frozenset[str] = frozenset(m.key for m in METHODS if "+" not in m.key)
 """Table I's trained rows (``Recipe.rows`` maps a model preset onto one of them)."""
@@ -145,7 +145,10 @@ class Recipe:
     map_dropout: float = 0.2
     """Probability of replacing a sample's memory maps by another sample's; models that read maps only."""
     select: str = "closed_loop"
-    """How ``best.pt`` is chosen: ``closed_loop`` (snapshots run on ``episodes/select``) or ``accuracy``."""
+    """How ``best.pt`` is chosen: ``closed_loop`` (snapshots run on ``episodes/<select_set>``) or ``accuracy``."""
+    select_set: str = "select"
+    """Closed-loop selection's episode set (:data:`nue.sim.episode_sets.EPISODE_SETS`), in the houses of
+    ``train_split``: ``select`` (21 ``train`` houses) or ``select_diverse`` (21 of the 42 ``train_diverse``)."""
     select_candidates: int = 3
     """Closed-loop selection: how many of the last snapshots compete."""
     dagger_rounds: int = 0
@@ -176,10 +179,15 @@ class Recipe:
     def __post_init__(self) -> None:
         for m in self.models:
             get_model_config(m)
-        if self.train_split not in SPLITS:
-            raise ConfigError("recipe", f"unknown train_split {self.train_split!r}; known: {', '.join(SPLITS)}")
+        if self.train_split not in TRAINING_SPLITS:
+            raise ConfigError("recipe", f"train_split {self.train_split!r} is not a training split; one of "
+                                        f"{', '.join(TRAINING_SPLITS)}")
         for s in self.eval_sets:
-            get_episode_set(s)
+            if get_episode_set(s).split in TRAINING_SPLITS:
+                raise ConfigError("recipe", f"eval_sets: {s!r} is in training houses, not an evaluation set")
+        if (sel := get_episode_set(self.select_set)).split != self.train_split or not sel.bin_per_house:
+            raise ConfigError("recipe", f"select_set {self.select_set!r} is not a selection set of the "
+                                        f"{self.train_split!r} houses")
         if self.train_minutes <= 0 and self.train_samples <= 0 and not self.steps:
             raise ConfigError("recipe", "needs a training budget: train_minutes, train_samples or steps")
         if set(self.swap_maps) - set(self.models):
@@ -271,11 +279,13 @@ class Recipe:
                 f"{last_mile})")
 
     def to_dict(self) -> dict:
-        """Plain JSON data (stored in the run folder; a resumed run must match it exactly). ``train_split`` only when it
-        is not ``train`` and ``last_mile`` and ``rows`` only when they name a model, so runs started before they existed resume."""
+        """Plain JSON data (stored in the run folder; a resumed run must match it exactly). ``train_split`` and
+        ``select_set`` only when they are not ``train`` / ``select``, and ``last_mile`` and ``rows`` only when they name a model, so runs started before they existed resume."""
         d = _jsonable(dataclasses.asdict(self))
         if d["train_split"] == "train":
             del d["train_split"]
+        if d["select_set"] == "select":
+            del d["select_set"]
         if not d["last_mile"]:
             del d["last_mile"]
         if not d["rows"]:
@@ -351,12 +361,20 @@ reached 83.3% on val252 in each of 3 training seeds against reactive ``nue_lean`
 [+0.4, +9.8] pooled over seeds x episodes (results/gru/README.md); no other change to the hand-off measured better.
 Recurrent models train on ``batch_size // seq_len`` sequences, the same samples per step."""
 
+V11 = V10.replace(name="v11", train_split="train_diverse", episodes_per_bin=3, heldout_per_bin=1,
+                 select_set="select_diverse", eval_sets=("val252", "val_plain", "val_pale"))
+"""v10 trained in the 42 style-diverse ``train_diverse`` houses (issue 43, docs/styles.md) and evaluated on the two
+held-out style families too: 3 training episodes per bin per house, so the same 378 training episodes as v10's
+21 houses x 6 (plus 1 held-out per bin), the same 256k samples per model; closed-loop selection on ``select_diverse``.
+A candidate, not the default, until its comparison with v10 on every set is in."""
+
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
     "v7": V7,
     "v8": V8,
     "v9": V9,
     "v10": V10,
+    "v11": V11,
     "v5": V5,
     "v3": V3,
     "quick": V3.replace(
@@ -368,7 +386,7 @@ RECIPES: dict[str, Recipe] = {
 """Named recipes: ``v10`` (the default: v9 with a recurrent NUE and ablations), ``v6`` (the shipped checkpoints' and
 RESULTS.md's: v5 with 256k samples per model instead of 50 minutes), ``v7`` (v6 with 3 training seeds for NUE,
 abl_at_cbam, abl_none and FR), ``v8`` (v7 with the SLING rows of NUE, FR and Nav-A3C), ``v9`` (v8 on the lean memory
-with VGM and NRNS, 3 seeds for 7 rows), ``v5``, ``v3`` (docs/history/checkpoints.md) and ``quick`` (CI; 2 training
+with VGM and NRNS, 3 seeds for 7 rows), ``v11`` (v10 trained in the style-diverse houses), ``v5``, ``v3`` (docs/history/checkpoints.md) and ``quick`` (CI; 2 training
 seeds of NUE, and its SLING row)."""
 
 DEFAULT_RECIPE = "v10"

@@ -77,7 +77,7 @@ def train_config(recipe: Recipe, run: str, folders: "RunFolders", device: str = 
         batch_size=recipe.batch_for(model), seq_len=recipe.seq_len, lr=recipe.lr, warmup=recipe.warmup,
         time_budget_s=60 * recipe.train_minutes, budget_clock=recipe.budget_clock, eval_every=recipe.step_plan(model).eval_every, seed=r.seed,
         device=device, precision=recipe.precision, compile=compile, map_dropout=recipe.map_dropout if cfg.uses_memory_maps else 0.0,
-        select="accuracy" if cfg.kind == "nrns" else recipe.select, select_episodes=str(folders.episodes_root / "select"),
+        select="accuracy" if cfg.kind == "nrns" else recipe.select, select_episodes=str(folders.episodes_root / recipe.select_set),
         select_candidates=recipe.select_candidates, select_scenes_root=str(folders.scenes_root))
 
 

@@ -198,6 +198,7 @@ def test_bad_choices_are_refused_naming_the_option_before_anything_is_written(ca
     for argv, line in ((["train", "--precision", "fp8"], "error: --precision: must be one of auto, fp32, bf16"),
                        (["dagger", "--select", "best"], "error: --select: must be one of accuracy, closed_loop"),
                        (["collect", "--expert", "oracle"], "error: --expert: must be one of geodesic, explore"),
+                       (["collect", "--split", "val"], "error: --split: must be one of train, train_diverse, got 'val'"),
                        (["convert", tmp_path, "--rgbd-bits", 5], "error: --rgbd-bits: must be 0 or one of")):
         with pytest.raises(SystemExit) as stop:
             main([str(a) for a in argv] + ["--out", str(tmp_path / "out")])

@@ -95,6 +95,21 @@ def demos(houses, tmp_path_factory):
     return out
 
 
+def test_collect_in_the_diverse_training_houses(tmp_path):
+    """``--split train_diverse --houses 5`` generates that house and collects in it (stopped after one episode file,
+    which is enough to show where it collected); the manifest names the split."""
+    from nue.train.manifest import read_manifest
+
+    out = tmp_path / "demos"
+    res = _cli("collect", "--out", out, "--scenes-root", tmp_path / "scenes", "--split", "train_diverse", "--houses", 5,
+               "--episodes-per-bin", 1, "--heldout-per-bin", 0, "--memory", "tiny", fail_after=1)
+    assert res.returncode == 3, res.stderr
+    assert [p.parent.name for p in _files(out).values()] == ["train_diverse_05"]
+    manifest = read_manifest(out)
+    assert manifest.split == "train_diverse" and list(manifest.scenes) == ["train_diverse_05"]
+    assert (tmp_path / "scenes" / "train_diverse_05" / "house.json").exists()
+
+
 def test_collection_round_trip(reference):
     files = _files(reference)
     assert len(files) == 12 and sum(k.startswith("heldout/") for k in files) == 6

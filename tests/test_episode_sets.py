@@ -24,15 +24,20 @@ def _entries(path: Path) -> list[dict]:
 
 def test_committed_sets_have_their_sizes_and_the_large_one_opens_with_the_quick_one():
     assert (set_size("val"), set_size("val252"), set_size("val_plain")) == (84, 252, 252)
+    assert (set_size("select"), set_size("select_diverse")) == (21, 21)
     for name, spec in EPISODE_SETS.items():
         files = sorted((EPISODES / name).glob("*.json"))
-        assert [f.stem for f in files] == [f"{spec.split}_{i:02d}" for i in range(len(SPLITS[spec.split]))]
+        houses = spec.houses or range(len(SPLITS[spec.split]))
+        assert [f.stem for f in files] == [f"{spec.split}_{i:02d}" for i in houses]
         per_house = set_size(name) // len(files)
-        for f in files:
+        for i, f in zip(houses, files):
             eps = _entries(f)
             assert len(eps) == per_house and len({e["episode_id"] for e in eps}) == per_house
             assert all(e["scene"] == f.stem for e in eps)
-            assert all(sum(e["difficulty"] == d for e in eps) == per_house // 3 for d in ("easy", "medium", "hard"))
+            if spec.bin_per_house:  # the bins in turn by house index
+                assert {e["difficulty"] for e in eps} == {("easy", "medium", "hard")[i % 3]}
+            else:
+                assert all(sum(e["difficulty"] == d for e in eps) == per_house // 3 for d in ("easy", "medium", "hard"))
     for f in sorted((EPISODES / "val").glob("*.json")):
         small = _entries(f)
         assert _entries(EPISODES / "val252" / f.name)[: len(small)] == small
@@ -55,10 +60,19 @@ def scenes(tmp_path_factory):
 
 def test_committed_files_are_rebuilt_from_their_specs(scenes, tmp_path):
     shutil.copytree(EPISODES / "val", tmp_path / "val")  # the set val252 extends
-    for name, house in (("val252", "val_00"), ("val_plain", "val_plain_00"), ("val_pale", "val_pale_00")):
-        (path,) = build_episode_set(name, scenes, tmp_path, houses=(0,), progress=False)
+    for name, i, house in (("val252", 0, "val_00"), ("val_plain", 0, "val_plain_00"), ("val_pale", 0, "val_pale_00"),
+                           ("select", 5, "train_05"), ("select_diverse", 4, "train_diverse_04")):
+        (path,) = build_episode_set(name, scenes, tmp_path, houses=(i,), progress=False)
         assert path == tmp_path / name / f"{house}.json"
         _same_episodes(_entries(path), _entries(EPISODES / name / f"{house}.json"))
+
+
+def test_a_house_outside_a_selection_set_is_refused(scenes, tmp_path):
+    from nue.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"house indices \[3\] are not in the set"):
+        build_episode_set("select_diverse", scenes, tmp_path, houses=(2, 3), progress=False)
+    assert not (tmp_path / "select_diverse").exists()
 
 
 def test_extending_keeps_the_episodes_and_continues_their_ids(box_scene, box_nav, box_renderer):

@@ -539,10 +539,23 @@ def test_train_split_selects_the_collection_houses_and_keeps_old_recipe_dicts():
 
     v6 = get_recipe("v6")
     assert "train_split" not in v6.to_dict() and collect_config(v6).split == "train"
-    diverse = v6.replace(train_split="train_diverse")
+    with pytest.raises(ConfigError, match="select_set 'select' is not a selection set of the 'train_diverse' houses"):
+        v6.replace(train_split="train_diverse")  # would select in houses it did not train in
+    diverse = v6.replace(train_split="train_diverse", select_set="select_diverse")
     assert diverse.to_dict()["train_split"] == "train_diverse" and collect_config(diverse).split == "train_diverse"
+    assert diverse.to_dict()["select_set"] == "select_diverse" and "select_set" not in v6.to_dict()
+    from nue.reproduce import RunFolders
+    from nue.reproduce_train import train_config
+
+    folders = RunFolders(Path("/run"), Path("data/scenes"), Path("episodes"))
+    assert train_config(v6, "nue", folders).select_episodes == "episodes/select"
+    assert train_config(get_recipe("v11"), "nue", folders).select_episodes == "episodes/select_diverse"
+    assert collect_config(get_recipe("v11")).split == "train_diverse"
     needed = houses_needed(diverse)
     assert sum(s == "train_diverse" for s, _ in needed) == len(SPLITS["train_diverse"])
     assert not any(s == "train" for s, _ in needed)
-    with pytest.raises(ConfigError, match="train_split"):
-        v6.replace(train_split="nowhere")
+    for split in ("nowhere", "val", "val_pale"):  # a model never learns from a validation split
+        with pytest.raises(ConfigError, match="train_split"):
+            v6.replace(train_split=split)
+    with pytest.raises(ConfigError, match="eval_sets: 'select' is in training houses"):
+        v6.replace(eval_sets=("val252", "select"))

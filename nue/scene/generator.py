@@ -51,6 +51,9 @@ SPLITS: dict[str, tuple[int, ...]] = {
 42 training houses of the ``diverse`` style distribution, 14 houses of the held-out ``pale`` family
 (all disjoint)."""
 
+TRAINING_SPLITS: tuple[str, ...] = ("train", "train_diverse")
+"""Splits models may learn from (demonstrations, selection); the others are for evaluation only."""
+
 SPLIT_STYLES: dict[str, str] = {"val_plain": "plain", "train_diverse": "diverse", "val_pale": "pale"}
 """Scene style of each split that is not ``gibson``: a fixed style of ``STYLES``, or a style distribution of
 ``house_styles.STYLE_DISTRIBUTIONS`` (a config drawn per house from its seed). Models train on ``train`` or

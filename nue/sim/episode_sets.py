@@ -45,6 +45,11 @@ class EpisodeSetSpec:
     held_out: bool = False
     """Whether the set's houses are a held-out style family (outside every training style; the generalisation
     table of ``nue report --generalisation`` compares models on these sets with the reference set)."""
+    houses: tuple[int, ...] = ()
+    """Indices of the split's houses the set covers (empty = all of them)."""
+    bin_per_house: bool = False
+    """Keep one difficulty bin per house, the bins in turn by house index (house ``i`` keeps bin ``i mod 3`` of the
+    ``per_bin`` episodes drawn in every bin): the closed-loop selection sets in training houses."""
 
 
 EPISODE_SETS: dict[str, EpisodeSetSpec] = {
@@ -60,8 +65,17 @@ EPISODE_SETS: dict[str, EpisodeSetSpec] = {
                                description="14 houses of the held-out pale family (flat near-white walls, open plan "
                                            "or L hallway; outside the diverse training styles) x 3 difficulties x 6 "
                                            "= 252 episodes"),
+    "select": EpisodeSetSpec("select", "train", per_bin=1, seed=31337, bin_per_house=True,
+                             description="closed-loop selection (nue.selection): one episode in each of the 21 "
+                                         "training houses, easy / medium / hard in turn = 21 episodes"),
+    "select_diverse": EpisodeSetSpec("select_diverse", "train_diverse", per_bin=1, seed=31337, bin_per_house=True,
+                                     houses=tuple(range(0, 42, 2)),
+                                     description="closed-loop selection for models trained on train_diverse: one "
+                                                 "episode in every other of its 42 houses (0, 2, ..., 40), the bins "
+                                                 "in turn by house index = 21 episodes, 7 per bin"),
 }
-"""The committed sets (``episodes/<name>/``); ``episodes/select`` (training houses) is closed-loop selection's."""
+"""The committed sets (``episodes/<name>/``): evaluation sets in validation houses, and closed-loop selection's sets
+in training houses (``bin_per_house``; never an evaluation set of a recipe)."""
 
 
 def held_out_sets() -> list[str]:
@@ -77,9 +91,16 @@ def get_episode_set(name: str) -> EpisodeSetSpec:
         raise ConfigError(name, f"unknown episode set; known: {', '.join(EPISODE_SETS)}") from None
 
 
+def set_houses(name: str) -> tuple[int, ...]:
+    """Indices of the houses a set covers."""
+    spec = get_episode_set(name)
+    return spec.houses or tuple(range(len(SPLITS[spec.split])))
+
+
 def set_size(name: str) -> int:
-    """Episodes in the full set: houses x bins x episodes per bin (those of ``extends`` included)."""
-    return len(SPLITS[get_episode_set(name).split]) * 3 * per_house_bin(name)
+    """Episodes in the full set: houses x bins x episodes per bin (those of ``extends`` included; one bin per house
+    for a ``bin_per_house`` set)."""
+    return len(set_houses(name)) * (1 if get_episode_set(name).bin_per_house else 3) * per_house_bin(name)
 
 
 def per_house_bin(name: str) -> int:
@@ -93,7 +114,9 @@ def build_episode_set(name: str, scenes_root, root="episodes", houses: tuple[int
     """Write ``root/<name>/<split>_<NN>.json`` for the houses of the set's split (all, or ``houses``),
     generating missing houses under ``scenes_root``; an extended set reads ``root/<extends>/`` first."""
     spec = get_episode_set(name)
-    indices = houses or tuple(range(len(SPLITS[spec.split])))
+    indices = houses or set_houses(name)
+    if unknown := sorted(set(indices) - set(set_houses(name))):
+        raise ConfigError(name, f"house indices {unknown} are not in the set (houses {list(set_houses(name))})")
     out = []
     for k, i in enumerate(indices):
         scene = Scene.load(ensure_house(spec.split, i, scenes_root))
@@ -104,6 +127,9 @@ def build_episode_set(name: str, scenes_root, root="episodes", houses: tuple[int
             eps = extend_episodes(base, scene, spec.task, gen, seed=spec.seed, navgrid=nav, renderer=renderer)
         else:
             eps = generate_episodes(scene, spec.task, gen, seed=spec.seed, navgrid=nav, renderer=renderer)
+        if spec.bin_per_house:
+            names = get_task(spec.task).bins.names
+            eps = [e for e in eps if e.difficulty == names[i % len(names)]]
         out.append(save_episodes(Path(root) / name / f"{scene.name}.json", eps, spec.task))
         if progress:
             print(f"[{k + 1}/{len(indices)}] {out[-1]} ({len(eps)} episodes)", file=sys.stderr)

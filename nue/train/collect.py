@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nue.errors import DataError
+from nue.errors import ConfigError, DataError
 from nue.jobs import Job, episode_seed, run_jobs, worker_cached
 from nue.nerf.config import MemoryConfig, get_memory
 from nue.nerf.online import OnlineNeRF
@@ -33,7 +33,7 @@ from nue.policy.config import get_model_config
 from nue.policy.inputs import prepare_input, resize_area
 from nue.policy.protocols import expert_label
 from nue.rollout import run_episode
-from nue.scene.generator import SPLITS, ensure_house
+from nue.scene.generator import SPLITS, TRAINING_SPLITS, ensure_house
 from nue.scene.scene import Scene
 from nue.sim.env import make_env
 from nue.sim.seen import goal_in_view
@@ -57,7 +57,8 @@ class CollectConfig:
     model: str = "nue"
     """Model preset whose input layout (frame size, map size, depth scale) the data is stored in."""
     split: str = "train"
-    """House split to collect in (``train``; the 14 ``val`` houses are for reporting only)."""
+    """Generated house split to collect in: ``train`` (21 houses of the ``gibson`` style) or ``train_diverse`` (42
+    houses, a style drawn per house, docs/styles.md); the validation splits are for evaluation only."""
     houses: tuple[int, ...] = ()
     """Indices of the houses of the split to use; empty = all."""
     scene_dirs: tuple[str, ...] = ()
@@ -103,6 +104,8 @@ def plan_collection(cfg: CollectConfig, scenes_root: Path) -> tuple[list[Job], C
     if tuple(memory_map := (memory.map_height, memory.map_width)) != tuple(model_cfg.map_size):
         raise DataError(None, f"memory preset {memory.name!r} renders maps at {memory_map}, model {model_cfg.name!r} "
                               f"expects {model_cfg.map_size}")
+    if not cfg.scene_dirs and cfg.split not in TRAINING_SPLITS:
+        raise ConfigError("split", f"{cfg.split!r} is not a training split; one of {', '.join(TRAINING_SPLITS)}")
     if cfg.scene_dirs:
         scenes = [Scene.load(d) for d in cfg.scene_dirs]
     else:
