@@ -363,10 +363,9 @@ Recurrent models train on ``batch_size // seq_len`` sequences, the same samples 
 
 V11 = V10.replace(name="v11", train_split="train_diverse", episodes_per_bin=3, heldout_per_bin=1,
                  select_set="select_diverse", eval_sets=("val252", "val_plain", "val_pale"))
-"""v10 trained in the 42 style-diverse ``train_diverse`` houses (issue 43, docs/styles.md) and evaluated on the two
-held-out style families too: 3 training episodes per bin per house, so the same 378 training episodes as v10's
-21 houses x 6 (plus 1 held-out per bin), the same 256k samples per model; closed-loop selection on ``select_diverse``.
-A candidate, not the default, until its comparison with v10 on every set is in."""
+"""v10 trained in the 42 style-diverse ``train_diverse`` houses (issue 43, docs/styles.md), evaluated on both held-out
+style families: 3 training episodes per bin per house (v10's 378 training episodes, + 1 held-out per bin), 256k samples
+per model, selection on ``select_diverse``. A candidate, not the default, until its comparison with v10 is in."""
 
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
