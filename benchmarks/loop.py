@@ -1,10 +1,13 @@
 """Agent-loop benchmark: ms per step of each part of the shared loop for NUE, NUE on the lean memory (``nue_lean``, when
-``results/lean/nue_lean.pt`` exists), FR and the expert.
+``results/lean/nue_lean.pt`` exists), FR, the memory baselines VGM and NRNS (when ``results/memory_baselines/`` holds
+their checkpoints) and the expert.
 
 Writes ``benchmarks/results/loop.json``. The loop timed is :func:`nue.rollout.run_episode` itself (the
 one shared by collection, DAgger, evaluation and the demo) with the evaluation's coverage tracker as its
 ``on_step``; each part is timed through a thin wrapper around the memory, the agent, the env and the
-tracker, so nothing is reimplemented. Per part: the median over every step of the run. The methods run
+tracker, so nothing is reimplemented. Per part: the median over every step of the run (NRNS decides at some steps
+and drives at the others, so its median ``act`` hides its decisions: compare methods by the wall time per step,
+given as a ratio to FR's, ``ratio_to_fr``). The methods run
 the same validation episodes (``episodes/val/val_00.json``, in order, until ``--steps`` steps; an episode
 is cut at ``--steps``), interleaved ``--repeats`` times, and each method's total is also given as a ratio
 to the bare ``env.step`` (the expert run's, which has no memory) measured in the same run, so the ratios
@@ -42,9 +45,11 @@ from nue.sim.env import make_env  # noqa: E402
 from nue.sim.episodes import load_episodes  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-CHECKPOINTS = {"nue_lean": ROOT / "results" / "lean" / "nue_lean.pt"}
+CHECKPOINTS = {"nue_lean": ROOT / "results" / "lean" / "nue_lean.pt",
+               "vgm": ROOT / "results" / "memory_baselines" / "vgm.pt",
+               "nrns": ROOT / "results" / "memory_baselines" / "nrns.pt"}
 """Methods whose checkpoint is not ``checkpoints/<name>.pt``: ``nue_lean`` (NUE on the lean memory's 30 x 40 maps,
-issue 38; its checkpoint carries the ``lean`` memory preset)."""
+issue 38; its checkpoint carries the ``lean`` memory preset) and the memory baselines (issue 39)."""
 PARTS = ("render_maps", "memory_step", "prepare_input", "policy_forward", "act", "env_step", "coverage")
 """``act`` is the agent's whole decision (``prepare_input`` + forward + sampling for a policy, the
 expert's decision for the expert); ``policy_forward`` = ``act`` - ``prepare_input``."""
@@ -135,7 +140,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--steps", type=int, default=280, help="steps per method and repeat")
     ap.add_argument("--repeats", type=int, default=2, help="interleaved repeats of the three methods")
-    ap.add_argument("--methods", default="nue,nue_lean,fr,expert" if CHECKPOINTS["nue_lean"].exists() else "nue,fr,expert")
+    default = ["nue", "nue_lean", "fr", "vgm", "nrns", "expert"]
+    ap.add_argument("--methods", default=",".join(m for m in default if m not in CHECKPOINTS or CHECKPOINTS[m].exists()))
     args = ap.parse_args()
     torch.set_num_threads(1)
     load_before = os.getloadavg()
@@ -155,10 +161,13 @@ def main() -> None:
     elapsed = time.perf_counter() - t_start
     result = {m: summarise(clocks[m], runs[m]) for m in methods}
     bare = result["expert"]["ms_median"]["env_step"] if "expert" in result else None
+    fr_wall = result["fr"]["wall_ms_per_step"] if "fr" in result else None
     for r in result.values():
         r["steps_per_s"] = 1000.0 / r["sum_of_medians_ms"]
         if bare:
             r["ratio_to_bare_env_step"] = r["sum_of_medians_ms"] / bare
+        if fr_wall:
+            r["ratio_to_fr"] = r["wall_ms_per_step"] / fr_wall
     path = write_result("loop", {
         "scene": scene.name,
         "episodes_file": f"episodes/val/{scene.name}.json",
@@ -170,12 +179,14 @@ def main() -> None:
         "methods": result,
     })
     cols = ("render_maps", "memory_step", "prepare_input", "policy_forward", "act", "env_step", "coverage")
-    print("| method | " + " | ".join(cols) + " | total (sum of medians) | steps/s | x bare env.step |")
-    print("|---" * (len(cols) + 4) + "|")
+    print("| method | " + " | ".join(cols) + " | total (sum of medians) | steps/s | x bare env.step | wall ms/step "
+          "| x FR (wall) |")
+    print("|---" * (len(cols) + 6) + "|")
     for m, r in result.items():
         cells = [f"{r['ms_median'][c]:.2f}" if c in r["ms_median"] else "–" for c in cols]
         print(f"| {m} | " + " | ".join(cells) + f" | {r['sum_of_medians_ms']:.2f} | {r['steps_per_s']:.1f} | "
-              f"{r.get('ratio_to_bare_env_step', float('nan')):.1f} |")
+              f"{r.get('ratio_to_bare_env_step', float('nan')):.1f} | {r['wall_ms_per_step']:.2f} | "
+              f"{r.get('ratio_to_fr', float('nan')):.2f} |")
     print(f"load average {load_before[0]:.2f} before, {os.getloadavg()[0]:.2f} after; {elapsed:.0f} s -> {path}")
 
 

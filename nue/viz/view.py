@@ -8,10 +8,10 @@ recording stream has up to two sinks: a gRPC server the page reads while the epi
 :mod:`nue.viz.view_scene`; screenshots: :mod:`nue.viz.view_shot`.
 
 A live run is :func:`nue.rollout.run_episode` with an ``on_step`` callback that logs each step (the
-maps the policy saw, before the memory learns the frame). A replay reads the poses of a record's
-``extra['trajectory']`` and re-renders the frames there; the policy does not run, and the memory is
-re-run along the recorded poses only when asked (``ReplaySource.maps``). A replay finds the record's episode
-file itself (:func:`find_episode`): the episode set whose file holds an episode with the record's digest.
+maps the policy saw, before the memory learns the frame; VGM's and NRNS's graphs, :mod:`nue.viz.view_graph`).
+A replay reads the poses of a record's ``extra['trajectory']`` and re-renders the frames there; the policy does
+not run, and the memory is re-run along the recorded poses only when asked (``ReplaySource.maps``). A replay finds
+the record's episode file itself (:func:`find_episode`): the episode set whose file holds an episode with the record's digest.
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ from nue.sim.env import ImageNavEnv, make_env
 from nue.sim.episodes import Episode, load_episodes
 from nue.sim.record import EpisodeRecord, RecordFormatError
 from nue.sim.task import get_task
+from nue.viz.view_graph import GraphLogger
 from nue.viz.view_scene import GOAL_COLOUR, TRAJECTORY_COLOUR, EpisodeLogger, SceneViewConfig, blueprint
 from nue.viz.view_server import PageServer, check_port, grpc_url, is_loopback, page_url, url_host
 from nue.viz.view_shot import find_chromium, has_colour, screenshot_page
@@ -208,11 +209,14 @@ def run_live(viewer: Viewer, src: LiveSource) -> EpisodeRecord:
         agent, memory = load_agent(src.checkpoint, env.task, scenes={scene.name: scene.content_hash})
         method = load_header(src.checkpoint).name
     log: list[EpisodeLogger] = []
+    graph: list[GraphLogger] = []
 
     def on_step(s) -> None:
         if s.t == 0:
             log.append(viewer.logger(s.env))
+            graph.append(GraphLogger(log[0].rec, log[0].floor_z))
         log[0].step(s.t, s.obs["pose"], s.obs["rgb"], s.obs["depth"], s.maps, s.info.get("geodesic_distance"))
+        graph[0].log(agent, s.obs["pose"])  # VGM's and NRNS's graphs; nothing for other agents
 
     record = run_episode(env, agent, episode=episode, memory=memory, seed=src.seed, on_step=on_step, method=method)
     final = env.trajectory_so_far().poses[-1]
