@@ -49,7 +49,7 @@ class VGMPlacer:
     """Positions for a VGM graph's nodes: the running mean of the robot's position over the steps the graph was
     localised at each node (a node index is its slot; an emptied graph starts again)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.sums: dict[int, np.ndarray] = {}
         self.counts: dict[int, int] = {}
 
