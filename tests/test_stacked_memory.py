@@ -7,7 +7,8 @@ import torch
 
 from nue.errors import ConfigError
 from nue.nerf import MemoryInputError, OnlineNeRF, get_memory
-from nue.nerf.stacked import SlotMemory, StackedMemory
+from nue.nerf.slots import StackedSlot
+from nue.nerf.stacked import StackedMemory
 from nue.sim.task import CameraConfig
 
 from .nerf_box_room import box_room_frame, box_room_trajectory
@@ -110,8 +111,8 @@ def test_panorama_per_slot(frames):
 
 
 def test_slot_memory_adapter_is_one_episode_memory(frames):
-    """SlotMemory has OnlineNeRF's reset / render_maps / step and gives its maps."""
-    mem, ref = SlotMemory(StackedMemory(SMALL, 2, CAMERA), 1), OnlineNeRF(SMALL, CAMERA)
+    """StackedSlot has OnlineNeRF's reset / render_maps / step and gives its maps."""
+    mem, ref = StackedSlot(StackedMemory(SMALL, 2, CAMERA), 1), OnlineNeRF(SMALL, CAMERA)
     mem.reset(5, frames[0][2], 0.0)
     ref.reset(5, frames[0][2], 0.0)
     for rgb, depth, pose in frames[:4]:

@@ -63,3 +63,26 @@ def slot_memory(first: OnlineNeRF, slots: int, kind: str = "list") -> MemoryList
     twins = [OnlineNeRF(first.config, first.camera, init_state=first.initial_state(), device=first.device)
              for _ in range(slots - 1)]
     return MemoryList([first, *twins])
+
+
+class StackedSlot:
+    """One slot of a :class:`~nue.nerf.stacked.StackedMemory` with the single-episode memory protocol
+    (``nue.rollout.Memory``): ``reset`` / ``render_maps`` / ``step`` as an ``OnlineNeRF``'s (each call batched over
+    this slot alone)."""
+
+    def __init__(self, stacked: StackedMemory, i: int):
+        self.stacked, self.slot = stacked, stacked._check_slot(i)
+        self.config, self.camera, self.device = stacked.config, stacked.camera, stacked.device
+
+    def reset(self, seed: int = 0, start_pose=None, floor_z: float = 0.0) -> None:
+        self.stacked.reset_slot(self.slot, seed, start_pose, floor_z)
+
+    def render_maps(self, pose, depth, floor_z: float = 0.0) -> MemoryMaps:
+        return self.stacked.render_maps([self.slot], [pose], [depth], [floor_z])[0]
+
+    def step(self, rgb, depth, pose, floor_z: float = 0.0) -> None:
+        self.stacked.step([self.slot], [rgb], [depth], [pose], [floor_z])
+
+    @property
+    def replay_len(self) -> int:
+        return self.stacked.replay_len(self.slot)

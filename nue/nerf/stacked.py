@@ -10,7 +10,7 @@ fixed cost of a call is paid once for several episodes. The per-ray work is not 
 Stacking (``grid`` field only):
 - the B voxel tables are one table of ``B * (V + 1)`` rows, slot i's at rows ``[i (V + 1), (i + 1) (V + 1))``,
   its last row standing for every point outside slot i's grid; one :class:`~nue.nerf.grid_field.RowAdam`-style
-  optimiser updates the touched rows, each with its own slot's step count (``_SlotRowAdam``);
+  optimiser updates the touched rows, each with its own slot's step count (:class:`~nue.nerf.slot_adam.SlotRowAdam`);
 - the colour MLPs are weights with a leading slot axis ``(B, ...)`` applied by batched matmuls to each slot's
   points (the listed slots have equal ray counts, so the shapes stack), trained by Adam with per-slot step counts;
 - each slot has its own ``torch.Generator`` seeded as ``OnlineNeRF.reset`` seeds it, drawn in the same order, so a
@@ -34,7 +34,7 @@ from torch.nn import functional as F
 from nue.errors import CheckpointError, ConfigError
 from nue.nerf.config import MemoryConfig, get_memory
 from nue.nerf.field import FieldOutputs
-from nue.nerf.grid_field import GridField, RowAdam, _TrilinearRead
+from nue.nerf.grid_field import GridField, _TrilinearRead
 from nue.nerf.loss import uncertainty_nll
 from nue.nerf.online import MemoryMaps, rgb_pixels
 from nue.nerf.rays import (
@@ -46,6 +46,7 @@ from nue.nerf.rays import (
     depth_guided_samples,
     map_pixels,
 )
+from nue.nerf.slot_adam import SlotRowAdam, slot_adam_step
 from nue.nerf.rendering import compositing_weights, render_depth, render_features, render_rgb, render_uncertainty
 from nue.sim.task import CameraConfig
 
@@ -69,36 +70,6 @@ class _Slot:
     n: int = 0  # frames in the replay
     next: int = 0  # ring-buffer position of the next frame
     newest: int = -1
-
-
-class _SlotRowAdam(RowAdam):
-    """:class:`RowAdam` on the stacked table with a step count per slot: each touched row takes the bias
-    correction of its own slot's count (rows of different slots are distinct, so slots do not interact)."""
-
-    def __init__(self, table: nn.Parameter, lr: float, slots: int, rows_per_slot: int):
-        super().__init__(table, lr)
-        self.rows_per_slot = rows_per_slot
-        self.slot_steps = np.zeros(slots, dtype=np.int64)
-
-    def reset_slot(self, i: int) -> None:
-        a = i * self.rows_per_slot
-        self._moments[a : a + self.rows_per_slot].zero_()
-        self.slot_steps[i] = 0
-
-    @torch.no_grad()
-    def step_slots(self, slots: list[int]) -> None:
-        g = self.table.grad
-        if g is None:
-            return
-        self.slot_steps[slots] += 1
-        idx, vals = g._indices()[0], g._values()
-        rows, m, v = self._update_moments(idx, vals)
-        b1, b2 = self.betas
-        s = np.maximum(self.slot_steps, 1).astype(np.float64)
-        per_slot = -self.lr * np.sqrt(1 - b2**s) / (1 - b1**s)  # as RowAdam's float step size, per slot
-        neg_step = torch.as_tensor(per_slot, dtype=vals.dtype, device=vals.device)[rows // self.rows_per_slot]
-        delta = neg_step[:, None] * m / (v.sqrt() + self.eps)
-        self.table.index_copy_(0, rows, self.table.index_select(0, rows).add_(delta))
 
 
 class StackedMemory:
@@ -142,7 +113,7 @@ class StackedMemory:
         self.rows_per_slot = geom.n_corners + 1
         width = 2 + cfg.grid.code_dim
         self.table = nn.Parameter(torch.zeros(self.slots * self.rows_per_slot, width, device=self.device))
-        self.row_adam = _SlotRowAdam(self.table, cfg.grid_lr, self.slots, self.rows_per_slot)
+        self.row_adam = SlotRowAdam(self.table, cfg.grid_lr, self.slots, self.rows_per_slot)
         b = self.slots
         self.dense = {k: v[None].repeat(b, *([1] * v.dim())).contiguous() for k, v in self._init.items()}
         self.exp_avg = {k: torch.zeros_like(v) for k, v in self.dense.items()}
@@ -476,7 +447,7 @@ class StackedMemory:
                 for q in params.values():
                     q.grad = None
                 loss.sum().backward()  # slots share no parameter: each slot's gradient is that of its own loss
-                self._dense_step(sl, params, m, v2)
+                slot_adam_step(params, m, v2, self.dense_steps, sl, self.config.lr)
                 self.row_adam.step_slots(sl)
         with torch.no_grad():
             for _, _, idx, params, m, v2 in groups:
@@ -485,24 +456,6 @@ class StackedMemory:
                     self.exp_avg[k].index_copy_(0, idx, m[k])
                     self.exp_avg_sq[k].index_copy_(0, idx, v2[k])
         self.table.grad = None
-
-    @torch.no_grad()
-    def _dense_step(self, slots: list[int], params, m, v) -> None:
-        """Adam on the listed slots' colour MLPs (``DenseAdam``'s arithmetic, each slot with its own step count)."""
-        b1, b2 = 0.9, 0.999
-        self.dense_steps[slots] += 1
-        step = self.dense_steps[slots].astype(np.float64)
-        lr = self.config.lr
-        neg_step = torch.as_tensor(-lr / (1 - b1**step), dtype=torch.float32, device=self.device)
-        bc2 = torch.as_tensor((1 - b2**step) ** 0.5, dtype=torch.float32, device=self.device)
-        for k, p in params.items():
-            g = p.grad
-            shape = (-1,) + (1,) * (p.dim() - 1)
-            m[k].lerp_(g, 1 - b1)
-            v[k].mul_(b2).addcmul_(g, g, value=1 - b2)
-            denom = (v[k].sqrt() / bc2.view(shape)).add_(1e-8)
-            p.add_(neg_step.view(shape) * m[k] / denom)
-
 
 def _load_init(geom: GridField, init_state: dict[str, torch.Tensor]) -> None:
     """Load stored initial weights into ``geom`` with ``OnlineNeRF``'s checks (the table is zero by definition)."""
@@ -513,25 +466,3 @@ def _load_init(geom: GridField, init_state: dict[str, torch.Tensor]) -> None:
     if unexpected or set(missing) - {"table"}:
         raise CheckpointError("memory init", f"stored NeRF initialisation does not fit the field config (missing "
                                              f"{sorted(set(missing) - {'table'})}, unexpected {sorted(unexpected)})")
-
-
-class SlotMemory:
-    """One slot of a :class:`StackedMemory` with the single-episode memory protocol (``nue.rollout.Memory``):
-    ``reset`` / ``render_maps`` / ``step`` as an ``OnlineNeRF``'s (each call batched over this slot alone)."""
-
-    def __init__(self, stacked: StackedMemory, i: int):
-        self.stacked, self.slot = stacked, stacked._check_slot(i)
-        self.config, self.camera, self.device = stacked.config, stacked.camera, stacked.device
-
-    def reset(self, seed: int = 0, start_pose=None, floor_z: float = 0.0) -> None:
-        self.stacked.reset_slot(self.slot, seed, start_pose, floor_z)
-
-    def render_maps(self, pose, depth, floor_z: float = 0.0) -> MemoryMaps:
-        return self.stacked.render_maps([self.slot], [pose], [depth], [floor_z])[0]
-
-    def step(self, rgb, depth, pose, floor_z: float = 0.0) -> None:
-        self.stacked.step([self.slot], [rgb], [depth], [pose], [floor_z])
-
-    @property
-    def replay_len(self) -> int:
-        return self.stacked.replay_len(self.slot)
