@@ -161,15 +161,37 @@ def explore_cmd(
     typer.echo(format_exploration_markdown(exploration_summary(records, reference), reference))
 
 
+def _record_files(spec: str) -> list[Path]:
+    """The files of a ``--set`` value's FILE part: comma-separated paths, each a path or a glob pattern (a pattern
+    matching nothing is an error; a plain path is checked by the reader)."""
+    import glob
+
+    from nue.errors import ConfigError
+
+    files: list[Path] = []
+    for part in filter(None, (p.strip() for p in spec.split(","))):
+        if glob.has_magic(part):
+            hits = sorted(glob.glob(part))
+            if not hits:
+                raise ConfigError("--set", f"no record file matches {part!r}")
+            files += map(Path, hits)
+        else:
+            files.append(Path(part))
+    if not files:
+        raise ConfigError("--set", f"no record file in {spec!r}")
+    return files
+
+
 def report_cmd(
     records: list[Path] = typer.Argument(..., help="Record files (JSON lines) from `nue eval`."),
     out: Path = typer.Option(Path("results/report"), help="Folder for table.md/.csv/.tex and coverage.png."),
     results_md: Optional[Path] = typer.Option(None, help="Also write this RESULTS.md."),
     command: str = typer.Option("", help="The evaluation command, recorded in RESULTS.md."),
     task: str = typer.Option("paper", help="Task preset of the records (its action ids, for the closed-loop diagnostics)."),
-    episode_set: list[str] = typer.Option([], "--set", help="NAME=FILE: records of a further episode set (e.g. "
-                                          "val252=results/records_val252.jsonl), its own section in RESULTS.md and "
-                                          "report folder OUT/NAME; repeatable."),
+    episode_set: list[str] = typer.Option([], "--set", help="NAME=FILE[,FILE...]: records of a further episode set "
+                                          "(e.g. val252=results/records_val252.jsonl; several files by commas or a "
+                                          "quoted glob: 'val_plain=results/gru/records_val_plain*.jsonl'), its own "
+                                          "section in RESULTS.md and report folder OUT/NAME; repeatable."),
     name: str = typer.Option("", help="The episode set of RECORDS (e.g. val252), as RESULTS.md's pooled section names "
                              "it; default \"Table I's episodes\"."),
     explore: list[str] = typer.Option([], help="NAME=FILE: `nue explore` records from set NAME's starts, a section of "
@@ -201,10 +223,10 @@ def report_cmd(
     for spec in episode_set:
         set_name, sep, path = spec.partition("=")
         if not sep or not set_name or not path:
-            raise ConfigError("--set", f"expected NAME=FILE, got {spec!r}")
+            raise ConfigError("--set", f"expected NAME=FILE[,FILE...], got {spec!r}")
         if set_name in sets:
             raise ConfigError("--set", f"episode set {set_name!r} given twice")
-        sets[set_name] = load_records(Path(path), **read)
+        sets[set_name] = load_records(*_record_files(path), **read)
     explored = {}
     for spec in explore:
         set_name, sep, path = spec.partition("=")
@@ -225,7 +247,7 @@ def report_cmd(
         all_sets = {name or "val": recs, **sets}
         if generalisation not in all_sets:
             raise ConfigError("--generalisation", f"{generalisation!r} is not the name of RECORDS (--name) or of a --set")
-        section = generalisation_section(generalisation, all_sets)
+        section = generalisation_section(generalisation, all_sets, compare_to=reference)
         if not section:
             typer.echo("no generalisation table: no model ran the reference set and a held-out set (--set val_plain=...)")
         else:

@@ -14,6 +14,8 @@ from nue.evaluate.metrics import EpisodeRecord
 from nue.evaluate.results_md import generalisation_section, render_results_md
 from nue.sim.episode_sets import held_out_sets
 
+from .conftest import nue_here
+
 
 def rec(i, ok, method="nue", scene="val_00", path=2.0):
     return EpisodeRecord(episode_id=f"easy_{i:03d}", scene=scene, difficulty="easy", success=ok, geodesic_start=2.0,
@@ -79,3 +81,47 @@ def test_report_cli_writes_the_table(tmp_path):
     except SystemExit as exc:
         assert exc.code in (0, None)
     assert "| NUE (full) | 100.0 / 0.750 | 25.0 / 0.250 | +75.0 [" in (out / "generalisation.md").read_text()
+
+
+def _with_outcome(r, outcome):
+    h = {"first_seen_step": None, "first_near_step": None, "closest_geodesic": 3.0, "closest_step": 0, "steps_near": 0,
+         "search_steps": 0, "exploit_steps": 0, "outcome": outcome}
+    return EpisodeRecord(**{**r.__dict__, "extra": {"handoff": h}})
+
+
+def test_failure_split_shares_by_hand_and_differences_to_another_reference():
+    from nue.evaluate.generalisation import failure_split
+
+    s = sets()
+    kinds = ["success", "found_then_lost", "never_near", "never_near"]  # NUE on val_pale: 1 success, 3 failures
+    pale = [_with_outcome(r, kinds[i]) if r.method == "nue" else r for i, r in enumerate(s["val_pale"][:4])]
+    # FR's two seeds: seed 0 fails episodes 2, 3 (one lost, one never near), seed 1 never fails
+    fr0 = [_with_outcome(r, ["success", "success", "found_then_lost", "never_near"][i])
+           for i, r in enumerate(s["val_pale"][4:8])]
+    fr1 = [_with_outcome(r, "success") for r in s["val_pale"][8:]]
+    split = failure_split(pale + fr0 + fr1)
+    assert split["nue"] == (0.25, 0.0, 0.5, 1)
+    assert split["fr"] == (0.125, 0.0, 0.125, 2)  # seed shares (1/4, 0) and (1/4, 0), averaged
+    text = generalisation_markdown({"val252": s["val252"], "val_pale": pale + fr0 + fr1}, "val252", ["val_pale"],
+                                   compare_to="fr")
+    assert "| NUE (full) | – | 25.0 / 0.0 / 50.0 |" in text and "| FR | – | 12.5 / 0.0 / 12.5 (2 runs) |" in text
+    assert "Paired differences to FR on `val_pale`" in text and "| NUE (full) | 4 (1 x 2 seeds) | -50.0 [" in text
+
+
+def test_report_set_takes_several_files_by_comma_and_glob(tmp_path):
+    s = sets()
+    (tmp_path / "val252.jsonl").write_text("".join(json.dumps(r.to_dict()) + "\n" for r in s["val252"]))
+    for name, method in (("nue", "nue"), ("fr_a", "fr"), ("fr_b", "fr@s1")):
+        recs = [r for r in s["val_pale"] if r.method == method]
+        (tmp_path / f"pale_{name}.jsonl").write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs))
+    out = tmp_path / "report"
+    res = nue_here("report", tmp_path / "val252.jsonl", "--name", "val252", "--set",
+                   f"val_pale={tmp_path / 'pale_nue.jsonl'},{tmp_path / 'pale_fr_*.jsonl'}", "--out", out,
+                   "--generalisation", "val252")
+    assert res.returncode == 0, res.stderr
+    text = (out / "generalisation.md").read_text()
+    assert "| NUE (full) | 100.0 / 0.750 | 25.0 / 0.250 | +75.0 [" in text and "| FR | 50.0 / " in text  # FR: 2 seeds
+    res = nue_here("report", tmp_path / "val252.jsonl", "--set", f"val_pale={tmp_path / 'none_*.jsonl'}",
+                   "--out", tmp_path / "r2")
+    assert res.returncode == 2 and "--set" in res.stderr and "none_*.jsonl" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1

@@ -17,7 +17,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from nue.evaluate.paired import METRIC_FNS, paired_differences
-from nue.evaluate.table import Cell, build_table, by_method_and_seed, method_label, order_methods
+from nue.evaluate.table import Cell, build_table, by_method_and_seed, canonical_method, method_label, order_methods
 from nue.sim.record import EpisodeRecord
 
 
@@ -94,11 +94,48 @@ def _drop(d: Drop | None, scale: float, spec: str) -> str:
     return "–" if d is None else f"{scale * d.mean:+{spec}} [{scale * d.lo:+{spec}}, {scale * d.hi:+{spec}}]"
 
 
+def failure_split(records: Sequence[EpisodeRecord]) -> dict[str, tuple[float, float, float, int]]:
+    """Per model (canonical key), its failures by hand-off class as shares of its episodes (mean over its training-seed
+    runs): (found then lost, near but unseen, never near, runs), over the records that carry a hand-off
+    (:mod:`nue.evaluate.handoff`)."""
+    from nue.evaluate.handoff import record_handoff
+
+    counts: dict[str, dict[str, list[int]]] = {}
+    for key, seeds in by_method_and_seed(records).items():
+        for run in seeds.values():
+            outcomes = [h.outcome for h in map(record_handoff, run) if h is not None]
+            if outcomes:
+                counts.setdefault(key, {}).setdefault("runs", []).append(1)
+                for c in ("found_then_lost", "near_unseen", "never_near"):
+                    counts[key].setdefault(c, []).append(outcomes.count(c) / len(outcomes))
+    return {k: (float(np.mean(v["found_then_lost"])), float(np.mean(v["near_unseen"])), float(np.mean(v["never_near"])),
+                len(v["runs"])) for k, v in counts.items()}
+
+
+def _failure_table(sets: Mapping[str, Sequence[EpisodeRecord]], names: Sequence[str], methods: Sequence[str]) -> str:
+    """Markdown: per model, each set's failures split by hand-off class (per run); '' when no record has a hand-off."""
+    split = {n: failure_split(_current(sets[n])) for n in names}
+    if not any(split.values()):
+        return ""
+    lines = ["| method | " + " | ".join(f"`{n}`: found then lost / near, unseen / never near" for n in names) + " |",
+             "|" + "---|" * (len(names) + 1)]
+    for m in methods:
+        cells = []
+        for n in names:
+            f = split[n].get(m)
+            cells.append("–" if f is None else f"{100 * f[0]:.1f} / {100 * f[1]:.1f} / {100 * f[2]:.1f}"
+                         + (f" ({f[3]} runs)" if f[3] > 1 else ""))
+        lines.append(f"| {method_label(m)} | " + " | ".join(cells) + " |")
+    return ("Failures by hand-off class (docs/exploration.md), % of the episodes of a training-seed run (mean over the "
+            "runs): *found then lost* saw the goal and came within 2 m but did not finish, *never near* never came "
+            "within 2 m:\n\n" + "\n".join(lines) + "\n")
+
+
 def generalisation_markdown(sets: Mapping[str, Sequence[EpisodeRecord]], reference: str,
-                            families: Sequence[str]) -> str:
-    """The table of :func:`generalisation_rows`, then the paired differences to NUE on each family ('' when no
-    model ran the reference set and a family)."""
-    from nue.evaluate.report import paired_markdown
+                            families: Sequence[str], compare_to: str = "nue") -> str:
+    """The table of :func:`generalisation_rows`, each set's failures by hand-off class, then the paired differences to
+    ``compare_to`` (default NUE) on each family ('' when no model ran the reference set and a family)."""
+    from nue.evaluate.report import reference_label, paired_markdown
 
     rows = generalisation_rows(sets, reference, families)
     if not rows:
@@ -118,9 +155,13 @@ def generalisation_markdown(sets: Mapping[str, Sequence[EpisodeRecord]], referen
              f"Drop: `{reference}` minus the family (positive = worse on the held-out style); sets of different houses, "
              "so the interval resamples each set's episodes independently (10,000 resamples, seed 0), each episode "
              "the mean over a model's training seeds. SR / SPL: seed means with several seeds.\n"]
+    failures = _failure_table(sets, [reference, *fams], [r.method for r in rows])
+    if failures:
+        parts.append(failures)
+    ref = reference_label(compare_to)
     for f in fams:
-        diffs = paired_differences(_current(sets[f]))
+        diffs = paired_differences(_current(sets[f]), reference=canonical_method(compare_to))
         if diffs:
-            parts.append(f"Paired differences to NUE on `{f}` (95% paired bootstrap; seed-pooled with several "
+            parts.append(f"Paired differences to {ref} on `{f}` (95% paired bootstrap; seed-pooled with several "
                          f"seeds):\n\n{paired_markdown(diffs)}")
     return "\n".join(parts)

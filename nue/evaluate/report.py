@@ -335,7 +335,7 @@ def handoff_markdown(records: Sequence[EpisodeRecord], reference: str = "nue") -
     if diffs:
         rank = {k: i for i, k in enumerate(order_methods({d.method for d in diffs}))}
         diffs = sorted(diffs, key=lambda d: rank[d.method])
-        ref = _reference_label(reference)
+        ref = reference_label(reference)
         text += (f"\nPaired differences of the failure classes to {ref} (the share of episodes, {ref}'s minus the "
                  f"method's; below 0 = {ref} fails that way less often; 95% paired bootstrap over the episodes both "
                  "ran; a method's training seeds are pooled, seeds x episodes, as in the paired differences of SR):\n\n"
@@ -343,7 +343,7 @@ def handoff_markdown(records: Sequence[EpisodeRecord], reference: str = "nue") -
     return text
 
 
-def _reference_label(reference: str) -> str:
+def reference_label(reference: str) -> str:
     """"NUE" for the default reference, else the method's row label."""
     key = canonical_method(reference)
     return "NUE" if key == "nue" else method_label(key)
@@ -363,7 +363,7 @@ def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = Tr
     rows = build_table(records)
     paper = paper_table() if reference else None
     md = (f"# Table I\n\n{format_markdown(rows, paper)}\n{NOTES}\n{seed_notes(rows)}\n## Episodes per cell (successes / episodes)\n\n"
-          f"{format_counts_markdown(rows)}\n{unreachable_markdown(records)}## Paired differences to {_reference_label(compare_to)}\n\n"
+          f"{format_counts_markdown(rows)}\n{unreachable_markdown(records)}## Paired differences to {reference_label(compare_to)}\n\n"
           f"{paired_markdown(paired_differences(records, reference=compare_to))}"
           f"\n## Closed-loop diagnostics\n\n{closed_loop_markdown(records, task)}")
     handoff = handoff_markdown(records, compare_to)

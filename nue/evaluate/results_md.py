@@ -202,16 +202,17 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     return "\n".join(parts)
 
 
-def generalisation_section(reference: str, sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
+def generalisation_section(reference: str, sets: Mapping[str, Sequence[EpisodeRecord]], compare_to: str = "nue") -> str:
     """RESULTS.md's (and ``nue report``'s) generalisation section: ``reference`` against every held-out set
-    (:func:`nue.sim.episode_sets.held_out_sets`) among ``sets``; '' when none of them ran both."""
+    (:func:`nue.sim.episode_sets.held_out_sets`) among ``sets``, paired differences to ``compare_to``; '' when none
+    of them ran both."""
     from nue.evaluate.generalisation import generalisation_markdown
     from nue.sim.episode_sets import held_out_sets
 
     families = [name for name in held_out_sets() if name in sets]
     if reference not in sets or not families:
         return ""
-    table = generalisation_markdown(sets, reference, families)
+    table = generalisation_markdown(sets, reference, families, compare_to)
     if not table:
         return ""
     names = ", ".join(f"`{f}`" for f in families)
