@@ -100,7 +100,7 @@ def failure_split(records: Sequence[EpisodeRecord]) -> dict[str, tuple[float, fl
     (:mod:`nue.evaluate.handoff`)."""
     from nue.evaluate.handoff import record_handoff
 
-    counts: dict[str, dict[str, list[int]]] = {}
+    counts: dict[str, dict[str, list[float]]] = {}
     for key, seeds in by_method_and_seed(records).items():
         for run in seeds.values():
             outcomes = [h.outcome for h in map(record_handoff, run) if h is not None]
