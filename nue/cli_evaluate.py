@@ -277,6 +277,9 @@ def diagnose_cmd(
     seed: int = typer.Option(0, help="Seed of the other-step maps, the probe's subsample and its shuffled control."),
     handoff: bool = typer.Option(False, help="With --records: recompute the exploration -> exploitation hand-off of "
                                  "records made without it into their hand-off files (records_X.handoff.jsonl; resumes)."),
+    agree: str = typer.Option("", help="With --records: A,B, two methods' per-step action agreement over the first "
+                              "--agree-steps steps of the episodes both ran (e.g. a --batch 8 run against --batch 1)."),
+    agree_steps: int = typer.Option(50, help="--agree: steps compared per episode."),
     episodes_dir: Optional[Path] = typer.Option(None, help="--handoff: the records' episode files (<house>.json)."),
     scenes_root: Path = typer.Option(Path("data/scenes"), help="--handoff: where the houses are (generated if missing)."),
     workers: int = WORKERS,
@@ -317,6 +320,18 @@ def diagnose_cmd(
         diags = D.record_diagnostics(recs, task, method)
         result["records"] = diags
         typer.echo("## Closed-loop diagnostics\n\n" + D.format_record_diagnostics(diags))
+        if agree:
+            pair = [m.strip() for m in agree.split(",")]
+            A.positive("--agree-steps", agree_steps)
+            missing = [m for m in pair if not any(r.method == m for r in recs)] if len(pair) == 2 else pair
+            if len(pair) != 2 or missing:
+                raise ConfigError("--agree", f"expected two methods of the records as A,B, got {agree!r}")
+            ag = D.action_agreement(recs, pair[0], pair[1], agree_steps)
+            result["agreement"] = ag
+            first = "–" if ag.median_first_difference is None else f"{ag.median_first_difference:.0f}"
+            typer.echo(f"## Action agreement\n\n{ag.a} vs {ag.b}: {100 * ag.agreement:.1f}% of {ag.steps} steps "
+                       f"(the first {agree_steps} of {ag.episodes} episodes both ran) chose the same action; "
+                       f"{ag.identical} episodes identical throughout; median first difference at step {first}\n")
         summaries = {k: v for k, v in handoff_summaries(recs).items() if not method or k in method}
         if summaries:
             result["handoff"] = summaries

@@ -302,3 +302,21 @@ def test_cli_diagnose_data_and_checkpoint(model_demos, tmp_path):
     assert res.exit_code == 0 and "n/a: the probe needs episodes from at least 2 houses" in res.output
     res = CliRunner().invoke(app, ["diagnose", "--data", str(tmp_path / "nowhere")])
     assert isinstance(res.exception, DataError) and "manifest" in str(res.exception)  # main() prints it, exit 2
+
+
+def test_action_agreement_by_hand_and_on_the_command_line(tmp_path):
+    # episode 0: the same 4 actions; episode 1: differs at step 2 (of 4); episode 2: b stops one step early;
+    # episode 3: only a ran it
+    a = [rec([F, F, L, R], [0] * 4, "m", 0), rec([F, L, L, F], [0] * 4, "m", 1), rec([F, F, F], [0] * 3, "m", 2),
+         rec([F], [0], "m", 3)]
+    b = [rec([F, F, L, R], [0] * 4, "m_b8", 0), rec([F, L, R, F], [0] * 4, "m_b8", 1), rec([F, F], [0] * 2, "m_b8", 2)]
+    ag = D.action_agreement(a + b, "m", "m_b8", limit=3)
+    # compared: 3 + 3 + 2 steps; differing: episode 1's step 2
+    assert (ag.episodes, ag.steps, ag.identical) == (3, 8, 1) and ag.agreement == pytest.approx(7 / 8)
+    assert ag.median_first_difference == 2.0  # episode 1 at step 2, episode 2 at its end (step 2)
+    path = tmp_path / "r.jsonl"
+    path.write_text("".join(json.dumps(r.to_dict()) + "\n" for r in a + b))
+    res = nue_here("diagnose", "--records", path, "--agree", "m,m_b8", "--agree-steps", 3)
+    assert res.returncode == 0, res.stderr
+    assert "m vs m_b8: 87.5% of 8 steps (the first 3 of 3 episodes both ran)" in res.stdout
+    assert_clean_error(nue_here("diagnose", "--records", path, "--agree", "m,nope"), "--agree", "'m,nope'")

@@ -185,6 +185,52 @@ def record_diagnostics(records: Sequence[EpisodeRecord], task: str | TaskConfig 
     return out
 
 
+@dataclass(frozen=True)
+class ActionAgreement:
+    """How closely two runs of the same episodes act (e.g. ``nue eval --batch 8`` against ``--batch 1``)."""
+
+    a: str
+    b: str
+    episodes: int
+    """Episodes both runs have with a trajectory."""
+    steps: int
+    """Steps compared: per episode the first ``min(limit, T_a, T_b)``."""
+    agreement: float
+    """Fraction of the compared steps at which both chose the same action."""
+    identical: int
+    """Episodes whose whole action sequences are equal."""
+    median_first_difference: float | None
+    """Median step of the first differing action over the episodes that differ (None if none does)."""
+
+
+def action_agreement(records: Sequence[EpisodeRecord], a: str, b: str, limit: int = 50) -> ActionAgreement:
+    """Per-step action agreement of methods ``a`` and ``b`` (record method names, e.g. ``nue_gru_lean`` and
+    ``nue_gru_lean_b8``) over the first ``limit`` steps of the episodes (scene, episode id) both ran."""
+    runs: dict[str, dict[tuple[str, str], np.ndarray]] = {a: {}, b: {}}
+    for r in records:
+        traj = r.trajectory() if r.method in runs else None
+        if traj is not None:
+            runs[r.method][(r.scene, r.episode_id)] = traj.actions
+    keys = sorted(set(runs[a]) & set(runs[b]))
+    same = steps = identical = 0
+    firsts = []
+    for k in keys:
+        x, y = runs[a][k], runs[b][k]
+        n = min(limit, len(x), len(y))
+        same += int((x[:n] == y[:n]).sum())
+        steps += n
+        m = min(len(x), len(y))
+        diff = np.flatnonzero(x[:m] != y[:m])
+        if len(diff):
+            firsts.append(int(diff[0]))
+        elif len(x) == len(y):
+            identical += 1
+        else:
+            firsts.append(m)
+    return ActionAgreement(a, b, len(keys), steps, same / steps if steps else float("nan"), identical,
+                           float(np.median(firsts)) if firsts else None)
+
+
 def read_records(*paths, drop_duplicates: bool = False, on_dropped: OnDropped | None = None) -> list[EpisodeRecord]:
     """Records from JSON-lines files, checked: a bad line or trajectory raises :class:`DataError` naming file and line,
     and so does a key recorded twice in one file (:mod:`nue.evaluate.record_keys`), unless ``drop_duplicates``: then
