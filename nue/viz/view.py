@@ -188,11 +188,7 @@ def pick_episode(episodes: list, which: str, where) -> object:
 
 def _memory_from(checkpoint: str | None, camera):
     """The online NeRF memory: a checkpoint's preset and initial weights, else the ``fast`` preset."""
-
-    if checkpoint is None:
-        return OnlineNeRF("fast", camera)
-
-    return load_memory(checkpoint, camera)
+    return OnlineNeRF("fast", camera) if checkpoint is None else load_memory(checkpoint, camera)
 
 
 def run_live(viewer: Viewer, src: LiveSource) -> EpisodeRecord:
