@@ -22,7 +22,7 @@ demo: setup
 	$(BIN)/nue demo --out outputs/demo
 
 test: setup lint
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 # ruff and mypy, both configured in pyproject.toml.
 lint: setup
