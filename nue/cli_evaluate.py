@@ -323,8 +323,7 @@ def diagnose_cmd(
         if agree:
             pair = [m.strip() for m in agree.split(",")]
             A.positive("--agree-steps", agree_steps)
-            missing = [m for m in pair if not any(r.method == m for r in recs)] if len(pair) == 2 else pair
-            if len(pair) != 2 or missing:
+            if len(pair) != 2 or not set(pair) <= {r.method for r in recs}:
                 raise ConfigError("--agree", f"expected two methods of the records as A,B, got {agree!r}")
             ag = D.action_agreement(recs, pair[0], pair[1], agree_steps)
             result["agreement"] = ag
