@@ -185,7 +185,8 @@ def _record_files(spec: str) -> list[Path]:
 def report_cmd(
     records: list[Path] = typer.Argument(..., help="Record files (JSON lines) from `nue eval`."),
     out: Path = typer.Option(Path("results/report"), help="Folder for table.md/.csv/.tex and coverage.png."),
-    results_md: Optional[Path] = typer.Option(None, help="Also write this RESULTS.md."),
+    results_md: Optional[Path] = typer.Option(None, help="Also write this RESULTS.md (its generalisation section from "
+                                          "RESULTS.generalisation.json beside it, when there is one)."),
     command: str = typer.Option("", help="The evaluation command, recorded in RESULTS.md."),
     task: str = typer.Option("paper", help="Task preset of the records (its action ids, for the closed-loop diagnostics)."),
     episode_set: list[str] = typer.Option([], "--set", help="NAME=FILE[,FILE...]: records of a further episode set "
@@ -203,6 +204,9 @@ def report_cmd(
                                        "OUT/generalisation.md, and a RESULTS.md section, with each model's SR / SPL "
                                        "on it and on every held-out style set given (val_plain, val_pale), the drop, "
                                        "and paired differences on each."),
+    pair: list[str] = typer.Option([], help="A,B: with --generalisation, the paired difference A - B of two methods on "
+                                   "the reference set and every held-out set, in one table (in place of the "
+                                   "differences to --reference); repeatable."),
 ):
     """Table I (SR / SPL / DTS per difficulty, CIs, paired differences to NUE) and coverage."""
     import json
@@ -210,7 +214,7 @@ def report_cmd(
 
     from nue.errors import ConfigError
     from nue.evaluate.report import load_records, write_report
-    from nue.evaluate.results_md import render_results_md
+    from nue.evaluate.results_md import HELD_OUT_FILE, load_held_out, render_results_md
     from nue.evaluate.table import canonical_method, split_seed
     from nue.viz.coverage import write_coverage_figure
 
@@ -227,6 +231,14 @@ def report_cmd(
         if set_name in sets:
             raise ConfigError("--set", f"episode set {set_name!r} given twice")
         sets[set_name] = load_records(*_record_files(path), **read)
+    pairs = []
+    for spec in pair:
+        a, sep, b = spec.partition(",")
+        if not sep or not a or not b or "," in b:
+            raise ConfigError("--pair", f"expected A,B (two method names), got {spec!r}")
+        pairs.append((canonical_method(a), canonical_method(b)))
+    if pairs and not generalisation:
+        raise ConfigError("--pair", "needs --generalisation (the pairs are compared on its sets)")
     explored = {}
     for spec in explore:
         set_name, sep, path = spec.partition("=")
@@ -247,7 +259,7 @@ def report_cmd(
         all_sets = {name or "val": recs, **sets}
         if generalisation not in all_sets:
             raise ConfigError("--generalisation", f"{generalisation!r} is not the name of RECORDS (--name) or of a --set")
-        section = generalisation_section(generalisation, all_sets, compare_to=reference)
+        section = generalisation_section(generalisation, all_sets, compare_to=reference, pairs=pairs)
         if not section:
             typer.echo("no generalisation table: no model ran the reference set and a held-out set (--set val_plain=...)")
         else:
@@ -258,8 +270,10 @@ def report_cmd(
         meta_path = results_md.parent / f"{results_md.stem}.meta.json"
         meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {
             "command": command, "date": "", "commit": "", "machine": f"{platform.machine()}, {os.cpu_count()} CPUs"}
+        held_path = results_md.parent / f"{results_md.stem}.{HELD_OUT_FILE}"
+        held = load_held_out(held_path) if held_path.is_file() else None
         results_md.write_text(render_results_md(recs, meta, task, sets=sets, main_name=name, explore=explored,
-                                                generalisation=generalisation))
+                                                generalisation=generalisation, held_out=held))
         typer.echo(f"wrote {results_md}")
     typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
 

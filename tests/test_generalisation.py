@@ -125,3 +125,54 @@ def test_report_set_takes_several_files_by_comma_and_glob(tmp_path):
                    "--out", tmp_path / "r2")
     assert res.returncode == 2 and "--set" in res.stderr and "none_*.jsonl" in res.stderr
     assert len(res.stderr.strip().splitlines()) == 1
+
+
+def test_pairs_table_by_hand_with_holm_across_its_cells():
+    from nue.evaluate.generalisation import pair_differences, pairs_markdown
+
+    s = sets()
+    diffs = pair_differences(s, [("nue", "fr")])
+    ref, pale = diffs[("nue", "fr")]["val252"], diffs[("nue", "fr")]["val_pale"]
+    assert ref.mean == pytest.approx(0.5) and (ref.seeds, ref.reference_seeds) == (1, 1)
+    # val_pale: NUE (1, 0, 0, 0) against FR's per-episode seed means (1, 1, .5, .5)
+    assert pale.mean == pytest.approx(-0.5) and (pale.seeds, pale.reference_seeds) == (1, 2)
+    text = pairs_markdown(s, [("nue", "fr"), ("fr", "nue")], label=lambda k: {"nue": "N", "fr": "F"}[k])
+    assert "| N − F | +50.0 [" in text and "(4, 1 x 1)" in text and "| F − N | -50.0 [" in text
+    assert "(4, 2 x 1)" in text and "across the 4 cells" in text
+    assert pair_differences(s, [("nue", "expert")]) == {}
+
+
+def _write(path, recs):
+    path.write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs))
+    return path
+
+
+def test_results_md_section_from_a_manifest_and_bad_manifests(tmp_path):
+    from nue.errors import DataError
+    from nue.evaluate.results_md import load_held_out
+
+    s = sets()
+    _write(tmp_path / "a.jsonl", s["val252"])
+    _write(tmp_path / "b.jsonl", s["val_pale"])
+    manifest = tmp_path / "RESULTS.generalisation.json"
+    manifest.write_text(json.dumps({"reference": "val252", "sets": {"val252": ["a.jsonl"], "val_pale": ["b.jsonl"]},
+                                    "pairs": [["nue", "fr"]], "labels": {"fr": "FR (old houses)"},
+                                    "about": "Rows of recipe X."}))
+    held = load_held_out(manifest)
+    meta = {"command": "c", "date": "d", "commit": "x", "machine": "m"}
+    text = render_results_md(s["val252"], meta, held_out=held)
+    section = text[text.index("## Generalisation to held-out styles"):]
+    assert section.startswith("## Generalisation to held-out styles\n\nRows of recipe X.\n\nEach model on `val252`")
+    assert "| FR (old houses) | 50.0 / " in section and "| NUE (full) − FR (old houses) | +50.0 [" in section
+    manifest.write_text(json.dumps({"reference": "val252", "sets": {"val252": ["a.jsonl", "gone.jsonl"]}}))
+    with pytest.raises(DataError, match="gone.jsonl"):
+        load_held_out(manifest)
+    manifest.write_text(json.dumps({"reference": "val9", "sets": {"val252": ["a.jsonl"]}}))
+    with pytest.raises(DataError, match="val9"):
+        load_held_out(manifest)
+    # nue report --results-md reads the manifest beside it: a bad one is one line, exit 2
+    res = nue_here("report", tmp_path / "a.jsonl", "--out", tmp_path / "r", "--results-md", tmp_path / "RESULTS.md")
+    assert res.returncode == 2 and "RESULTS.generalisation.json" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
+    res = nue_here("report", tmp_path / "a.jsonl", "--out", tmp_path / "r", "--pair", "nue,fr")
+    assert res.returncode == 2 and "--pair" in res.stderr and "--generalisation" in res.stderr

@@ -16,8 +16,10 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from nue.evaluate.paired import METRIC_FNS, paired_differences
-from nue.evaluate.table import Cell, build_table, by_method_and_seed, canonical_method, method_label, order_methods
+from nue.evaluate.paired import METRIC_FNS, PairedDiff, paired_differences
+from nue.evaluate.stats import holm
+from nue.evaluate.table import (Cell, build_table, by_method_and_seed, canonical_method, method_label, order_methods,
+                                split_seed)
 from nue.sim.record import EpisodeRecord
 
 
@@ -112,7 +114,8 @@ def failure_split(records: Sequence[EpisodeRecord]) -> dict[str, tuple[float, fl
                 len(v["runs"])) for k, v in counts.items()}
 
 
-def _failure_table(sets: Mapping[str, Sequence[EpisodeRecord]], names: Sequence[str], methods: Sequence[str]) -> str:
+def _failure_table(sets: Mapping[str, Sequence[EpisodeRecord]], names: Sequence[str], methods: Sequence[str],
+                   label=method_label) -> str:
     """Markdown: per model, each set's failures split by hand-off class (per run); '' when no record has a hand-off."""
     split = {n: failure_split(_current(sets[n])) for n in names}
     if not any(split.values()):
@@ -125,17 +128,70 @@ def _failure_table(sets: Mapping[str, Sequence[EpisodeRecord]], names: Sequence[
             f = split[n].get(m)
             cells.append("–" if f is None else f"{100 * f[0]:.1f} / {100 * f[1]:.1f} / {100 * f[2]:.1f}"
                          + (f" ({f[3]} runs)" if f[3] > 1 else ""))
-        lines.append(f"| {method_label(m)} | " + " | ".join(cells) + " |")
+        lines.append(f"| {label(m)} | " + " | ".join(cells) + " |")
     return ("Failures by hand-off class (docs/exploration.md), % of the episodes of a training-seed run (mean over the "
             "runs): *found then lost* saw the goal and came within 2 m but did not finish, *never near* never came "
             "within 2 m:\n\n" + "\n".join(lines) + "\n")
 
 
+def pair_differences(sets: Mapping[str, Sequence[EpisodeRecord]], pairs: Sequence[tuple[str, str]],
+                     metric: str = "sr") -> dict[tuple[str, str], dict[str, PairedDiff]]:
+    """Per pair ``(a, b)`` of method keys and per set where both ran: the paired difference a - b of ``metric``
+    (:func:`nue.evaluate.paired.paired_differences` on the two methods' records alone, seed-pooled when either has
+    several training seeds)."""
+    out: dict[tuple[str, str], dict[str, PairedDiff]] = {}
+    for a, b in pairs:
+        a, b = canonical_method(a), canonical_method(b)
+        for name, recs in sets.items():
+            two = [r for r in _current(recs) if canonical_method(split_seed(r.method)[0]) in (a, b)]
+            found = [d for d in paired_differences(two, reference=b, metrics=(metric,)) if d.method == a and d.n_pairs]
+            if found:
+                out.setdefault((a, b), {})[name] = found[0]
+    return out
+
+
+def pairs_markdown(sets: Mapping[str, Sequence[EpisodeRecord]], pairs: Sequence[tuple[str, str]],
+                   label=method_label) -> str:
+    """A table of :func:`pair_differences` in SR points, a row per pair and a column per set, each cell's verdict
+    after a Holm-Bonferroni correction across all the table's cells; '' when no pair ran together."""
+    diffs = pair_differences(sets, pairs)
+    if not diffs:
+        return ""
+    names = [n for n in sets if any(n in row for row in diffs.values())]
+    cells = [(k, n) for k in diffs for n in names if n in diffs[k]]
+    holds = dict(zip(cells, holm([diffs[k][n].p for k, n in cells])))
+    lines = ["| difference | " + " | ".join(f"`{n}`: ΔSR points [95% CI] (episodes, seeds)" for n in names) + " |",
+             "|" + "---|" * (len(names) + 1)]
+    for (a, b), row in diffs.items():
+        out = []
+        for n in names:
+            d = row.get(n)
+            if d is None:
+                out.append("–")
+                continue
+            mark = "" if not d.resolved else " **resolved**" if holds[((a, b), n)] else " resolved, not after Holm"
+            out.append(f"{100 * d.mean:+.1f} [{100 * d.lo:+.1f}, {100 * d.hi:+.1f}] ({d.n_pairs}, {d.seeds} x "
+                       f"{d.reference_seeds}){mark}")
+        lines.append(f"| {label(a)} − {label(b)} | " + " | ".join(out) + " |")
+    return ("Paired differences between the rows on each set: per episode, each side's mean over its training seeds; "
+            "95% interval of a two-level bootstrap (seeds, then episodes; the episodes alone with one run each), "
+            f"10,000 resamples, seed 0. *Resolved*: the interval excludes 0; **bold**: it still holds after a "
+            f"Holm-Bonferroni correction across the {len(cells)} cells of this table (5% family-wise). The interval "
+            "covers the episodes and, with several seeds, the training seeds (understated with few); not the "
+            "demonstrations, which each row's seeds share.\n\n" + "\n".join(lines) + "\n")
+
+
 def generalisation_markdown(sets: Mapping[str, Sequence[EpisodeRecord]], reference: str,
-                            families: Sequence[str], compare_to: str = "nue") -> str:
-    """The table of :func:`generalisation_rows`, each set's failures by hand-off class, then the paired differences to
-    ``compare_to`` (default NUE) on each family ('' when no model ran the reference set and a family)."""
+                            families: Sequence[str], compare_to: str = "nue", pairs: Sequence[tuple[str, str]] = (),
+                            labels: Mapping[str, str] | None = None) -> str:
+    """The table of :func:`generalisation_rows`, each set's failures by hand-off class, then the paired differences:
+    with ``pairs``, the table of :func:`pairs_markdown` on the reference set and every family; else to ``compare_to``
+    (default NUE) on each family. ``labels``: row names by method key (default :func:`method_label`). '' when no
+    model ran the reference set and a family."""
     from nue.evaluate.report import reference_label, paired_markdown
+
+    def label(key: str) -> str:
+        return (labels or {}).get(key) or method_label(key)
 
     rows = generalisation_rows(sets, reference, families)
     if not rows:
@@ -146,7 +202,7 @@ def generalisation_markdown(sets: Mapping[str, Sequence[EpisodeRecord]], referen
         head += [f"`{f}` SR % / SPL", "SR drop, points [95% CI]", "SPL drop [95% CI]"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        cells = [method_label(r.method), _cell(r.cells.get(reference))]
+        cells = [label(r.method), _cell(r.cells.get(reference))]
         for f in fams:
             d = r.drops.get(f, {})
             cells += [_cell(r.cells.get(f)), _drop(d.get("sr"), 100, ".1f"), _drop(d.get("spl"), 1, ".3f")]
@@ -155,9 +211,14 @@ def generalisation_markdown(sets: Mapping[str, Sequence[EpisodeRecord]], referen
              f"Drop: `{reference}` minus the family (positive = worse on the held-out style); sets of different houses, "
              "so the interval resamples each set's episodes independently (10,000 resamples, seed 0), each episode "
              "the mean over a model's training seeds. SR / SPL: seed means with several seeds.\n"]
-    failures = _failure_table(sets, [reference, *fams], [r.method for r in rows])
+    failures = _failure_table(sets, [reference, *fams], [r.method for r in rows], label)
     if failures:
         parts.append(failures)
+    if pairs:
+        table = pairs_markdown({n: sets[n] for n in [reference, *fams]}, pairs, label)
+        if table:
+            parts.append(table)
+        return "\n".join(parts)
     ref = reference_label(compare_to)
     for f in fams:
         diffs = paired_differences(_current(sets[f]), reference=canonical_method(compare_to))

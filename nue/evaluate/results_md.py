@@ -8,6 +8,7 @@ the notes on seeds appear only then, so a table of single runs reads as before."
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -131,7 +132,7 @@ def committed_explore(root) -> dict[str, list[EpisodeRecord]]:
 def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, object], task: str = "paper",
                       sets: Mapping[str, Sequence[EpisodeRecord]] | None = None, main_name: str = "",
                       explore: Mapping[str, Sequence[EpisodeRecord]] | None = None,
-                      generalisation: str = "") -> str:
+                      generalisation: str = "", held_out: HeldOutInputs | None = None) -> str:
     """The text of RESULTS.md, a pure function of the records and ``meta``.
 
     ``meta``: ``command``, ``date``, ``commit``, ``machine`` (shown first), any other keys
@@ -142,7 +143,9 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     it (default "Table I's episodes"); ``explore``: the exploration benchmark's records per set of starts (a section
     each, :func:`exploration_section_markdown`); ``generalisation``: a reference set's name (``val252``, the main
     records or one of ``sets``): a section comparing it with every held-out set of ``sets``
-    (:mod:`nue.evaluate.generalisation`; '' = none). Same inputs give the same bytes (the bootstrap is seeded).
+    (:mod:`nue.evaluate.generalisation`; '' = none); ``held_out``: instead, a generalisation section from its own
+    record files (:class:`HeldOutInputs`, ``RESULTS.generalisation.json``). Same inputs give the same bytes (the
+    bootstrap is seeded).
     """
     current = [r for r in records if not is_earlier_recipe(r.method)]
     earlier = [r for r in records if is_earlier_recipe(r.method)]
@@ -193,7 +196,12 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
         pooled = pooled_section_markdown({main_name or MAIN_SET: records, **sets})
         if pooled:
             parts.append(pooled)
-    if generalisation:
+    if held_out is not None:
+        section = generalisation_section(held_out.reference, held_out.sets, pairs=held_out.pairs,
+                                         labels=held_out.labels, about=held_out.about)
+        if section:
+            parts.append(section)
+    elif generalisation:
         section = generalisation_section(generalisation, {main_name or MAIN_SET: records, **(sets or {})})
         if section:
             parts.append(section)
@@ -202,21 +210,25 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     return "\n".join(parts)
 
 
-def generalisation_section(reference: str, sets: Mapping[str, Sequence[EpisodeRecord]], compare_to: str = "nue") -> str:
+def generalisation_section(reference: str, sets: Mapping[str, Sequence[EpisodeRecord]], compare_to: str = "nue",
+                           pairs: Sequence[tuple[str, str]] = (), labels: Mapping[str, str] | None = None,
+                           about: str = "") -> str:
     """RESULTS.md's (and ``nue report``'s) generalisation section: ``reference`` against every held-out set
-    (:func:`nue.sim.episode_sets.held_out_sets`) among ``sets``, paired differences to ``compare_to``; '' when none
-    of them ran both."""
+    (:func:`nue.sim.episode_sets.held_out_sets`) among ``sets``, paired differences to ``compare_to`` (or between
+    ``pairs``, :func:`nue.evaluate.generalisation.generalisation_markdown`), ``about`` as its first paragraph; ''
+    when none of them ran both."""
     from nue.evaluate.generalisation import generalisation_markdown
     from nue.sim.episode_sets import held_out_sets
 
     families = [name for name in held_out_sets() if name in sets]
     if reference not in sets or not families:
         return ""
-    table = generalisation_markdown(sets, reference, families, compare_to)
+    table = generalisation_markdown(sets, reference, families, compare_to, pairs, labels)
     if not table:
         return ""
     names = ", ".join(f"`{f}`" for f in families)
-    return (f"## Generalisation to held-out styles\n\nEach model on `{reference}` (houses of its training style) and on "
+    return ("## Generalisation to held-out styles\n\n" + (f"{about}\n\n" if about else "")
+            + f"Each model on `{reference}` (houses of its training style) and on "
             f"the held-out style families {names}, whose houses lie outside every training style (docs/styles.md).\n\n"
             f"{table}")
 
@@ -245,3 +257,59 @@ def committed_inputs(root) -> tuple[list[EpisodeRecord], dict, dict[str, list[Ep
     main = str(meta.get("main set", ""))
     main_file = files.pop(main or "val")
     return load_records(main_file), meta, {name: load_records(f) for name, f in files.items()}, main
+
+
+@dataclass(frozen=True)
+class HeldOutInputs:
+    """What RESULTS.md's generalisation section is rendered from when its models are not Table I's: the file
+    ``RESULTS.generalisation.json`` beside RESULTS.md (:func:`load_held_out`)."""
+
+    reference: str
+    """The set of the training style the drops are measured from (``val252``)."""
+    sets: dict[str, list[EpisodeRecord]]
+    """Set name -> the records of every listed file."""
+    pairs: tuple[tuple[str, str], ...]
+    """(a, b) method keys: the paired differences a - b shown on every set."""
+    labels: dict[str, str]
+    """Row names by method key (e.g. which recipe and training houses)."""
+    about: str
+    """The section's first paragraph: what the rows are and where their records come from."""
+
+
+HELD_OUT_FILE = "generalisation.json"
+"""Suffix of the generalisation manifest beside a RESULTS.md: ``RESULTS.generalisation.json``. Its keys: ``reference``
+(a set name), ``sets`` (set name -> record files, relative to the manifest's folder), ``pairs`` (list of [a, b]),
+``labels`` (method key -> row name) and ``about`` (text)."""
+
+
+def load_held_out(path: Path) -> HeldOutInputs:
+    """The manifest at ``path`` with its record files loaded; a malformed manifest or a missing file -> DataError
+    naming the manifest."""
+    import json
+
+    from nue.errors import DataError
+    from nue.evaluate.report import load_records
+
+    try:
+        raw = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise DataError(path, f"cannot read the generalisation manifest ({exc})") from None
+    try:
+        reference, about = str(raw["reference"]), str(raw.get("about", ""))
+        files = {str(k): [Path(path).parent / str(f) for f in v] for k, v in dict(raw["sets"]).items()}
+        pairs = tuple((str(a), str(b)) for a, b in raw.get("pairs", []))
+        labels = {str(k): str(v) for k, v in dict(raw.get("labels", {})).items()}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DataError(path, f"expected keys reference, sets {{name: [files]}}, pairs [[a, b]], labels, about ({exc!r})") from None
+    if reference not in files:
+        raise DataError(path, f"reference set {reference!r} is not among its sets ({', '.join(files)})")
+    missing = [str(f) for fs in files.values() for f in fs if not f.is_file()]
+    if missing:
+        raise DataError(path, f"record file(s) not found: {', '.join(missing)}")
+    return HeldOutInputs(reference, {k: load_records(*v) for k, v in files.items()}, pairs, labels, about)
+
+
+def committed_held_out(root) -> HeldOutInputs | None:
+    """The repository's ``RESULTS.generalisation.json`` loaded (:func:`load_held_out`), or None without one."""
+    path = Path(root) / f"RESULTS.{HELD_OUT_FILE}"
+    return load_held_out(path) if path.is_file() else None
