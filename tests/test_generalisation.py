@@ -41,8 +41,13 @@ def test_rows_by_hand():
     assert nue.cells["val_pale"].sr == 0.25 and nue.drops["val_pale"]["sr"].mean == pytest.approx(0.75)
     assert nue.drops["val_pale"]["spl"].mean == pytest.approx(0.75 - 0.25)
     assert fr.cells["val_pale"].sr == pytest.approx(0.75)  # seed mean of 0.5 and 1.0
-    assert fr.drops["val_pale"]["sr"].mean == pytest.approx(0.5 - 0.75)  # per-episode seed means (1, 1, .5, .5)
+    assert fr.drops["val_pale"]["sr"].mean == pytest.approx(0.0)  # only seed 0 ran both sets: 2/4 on each
     assert set(nue.drops) == {"val_pale"}
+    s = sets()
+    s["val252"] += [rec(i, False, "fr@s1") for i in range(4)]  # now both seeds ran both sets
+    fr = {r.method: r for r in generalisation_rows(s, "val252", ["val_pale"])}["fr"]
+    assert fr.cells["val252"].sr == pytest.approx(0.25)  # seed means (.5 + 0) / 2
+    assert fr.drops["val_pale"]["sr"].mean == pytest.approx(0.25 - 0.75)  # per-episode seed means (1, 1, .5, .5)
 
 
 def test_independent_drop_interval():

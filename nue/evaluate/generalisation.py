@@ -4,9 +4,10 @@ the paired differences between models on each family.
 
 A drop compares two sets of different houses, so it is not paired: its 95% interval is a bootstrap that resamples
 each set's episodes independently (10,000 resamples, seed 0), each episode's result the mean over the method's
-training seeds that ran it. Several training seeds of a method (runs ``<model>@s<k>``) are one row of seed means,
-as in Table I; the paired differences on a family are :func:`nue.evaluate.paired.paired_differences` (seed-pooled
-when several seeds exist). Earlier recipes' rows (``*_v<N>``) are left out, as in Table I.
+training seeds that ran it, counting only the seeds that ran both sets (when they share one). Several training
+seeds of a method (runs ``<model>@s<k>``) are one row of seed means, as in Table I; the paired differences on a family
+are :func:`nue.evaluate.paired.paired_differences` (seed-pooled when several seeds exist), to one reference or
+between named pairs of rows on every set (:func:`pairs_markdown`). Earlier recipes' rows (``*_v<N>``) are left out, as in Table I.
 """
 
 from __future__ import annotations
@@ -75,15 +76,22 @@ def generalisation_rows(sets: Mapping[str, Sequence[EpisodeRecord]], reference: 
     """A row per model that ran ``reference`` and at least one of ``families`` (names of ``sets``)."""
     current = {name: _current(sets[name]) for name in [reference, *families] if name in sets}
     cells = {name: {row.method: row.cells["total"] for row in build_table(recs)} for name, recs in current.items()}
-    by_set = {name: {key: [r for run in seeds.values() for r in run] for key, seeds in by_method_and_seed(recs).items()}
-              for name, recs in current.items()}
+    by_set = {name: by_method_and_seed(recs) for name, recs in current.items()}
+
+    def runs(name: str, method: str, seeds: set[int]) -> list[EpisodeRecord]:
+        return [r for k, run in by_set[name][method].items() if k in seeds for r in run]
+
     rows = []
     for method in order_methods(cells.get(reference, {})):
         ran = [f for f in families if method in cells.get(f, {})]
         if not ran:
             continue
-        drops = {f: {m: independent_drop(_episode_means(by_set[reference][method], m),
-                                         _episode_means(by_set[f][method], m)) for m in ("sr", "spl")} for f in ran}
+        drops = {}
+        for f in ran:  # over the training seeds that ran both sets (all of each set's when they share none)
+            both = set(by_set[reference][method]) & set(by_set[f][method])
+            a = runs(reference, method, both or set(by_set[reference][method]))
+            b = runs(f, method, both or set(by_set[f][method]))
+            drops[f] = {m: independent_drop(_episode_means(a, m), _episode_means(b, m)) for m in ("sr", "spl")}
         rows.append(GeneralisationRow(method, {n: cells[n][method] for n in [reference, *ran]}, drops))
     return rows
 
@@ -210,7 +218,8 @@ def generalisation_markdown(sets: Mapping[str, Sequence[EpisodeRecord]], referen
     parts = ["\n".join(lines) + "\n",
              f"Drop: `{reference}` minus the family (positive = worse on the held-out style); sets of different houses, "
              "so the interval resamples each set's episodes independently (10,000 resamples, seed 0), each episode "
-             "the mean over a model's training seeds. SR / SPL: seed means with several seeds.\n"]
+             "the mean over a model's training seeds, over the seeds that ran both sets. SR / SPL: seed means over "
+             "the seeds that ran the set.\n"]
     failures = _failure_table(sets, [reference, *fams], [r.method for r in rows], label)
     if failures:
         parts.append(failures)
