@@ -365,7 +365,8 @@ V11 = V10.replace(name="v11", train_split="train_diverse", episodes_per_bin=3, h
                  select_set="select_diverse", eval_sets=("val252", "val_plain", "val_pale"))
 """v10 trained in the 42 style-diverse ``train_diverse`` houses (issue 43, docs/styles.md), evaluated on both held-out
 style families: 3 training episodes per bin per house (v10's 378 training episodes, + 1 held-out per bin), 256k samples
-per model, selection on ``select_diverse``. A candidate, not the default, until its comparison with v10 is in."""
+per model, selection on ``select_diverse``. Not the default: its NUE-GRU lost 5.2 SR points on val252 against v10's
+(2 x 3 seeds, [-10.8, +0.2]) while FR did not (results/diverse/README.md)."""
 
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
