@@ -299,3 +299,20 @@ def test_ports_are_checked_on_the_chosen_interface_and_an_open_viewer_says_so(tm
                    "--host", "0.0.0.0", "--port", _free_port(), "--grpc-port", _free_port(), "--serve-seconds", 0.01)
     assert res.returncode == 0, res.stderr
     assert "are reachable from the network by anyone who can reach this machine" in res.stdout
+
+
+def test_waiting_for_a_port_to_close_sees_a_listener_and_its_end():
+    """What the viewer's close() waits on: a port still accepting connections is not closed (bounded wait gives
+    up), a port whose listener has closed is."""
+    from nue.viz.view_server import wait_port_closed
+
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen()
+    port = listener.getsockname()[1]
+    try:
+        assert wait_port_closed("127.0.0.1", port, timeout=0.0) is False
+        assert wait_port_closed("0.0.0.0", port, timeout=0.0) is False  # every interface: probed on the loopback
+    finally:
+        listener.close()
+    assert wait_port_closed("127.0.0.1", port, timeout=0.0) is True

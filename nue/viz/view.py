@@ -41,7 +41,7 @@ from nue.sim.record import EpisodeRecord, RecordFormatError
 from nue.sim.task import get_task
 from nue.viz.view_graph import GraphLogger
 from nue.viz.view_scene import GOAL_COLOUR, TRAJECTORY_COLOUR, EpisodeLogger, SceneViewConfig, blueprint
-from nue.viz.view_server import PageServer, check_port, grpc_url, is_loopback, page_url, url_host
+from nue.viz.view_server import PageServer, check_port, grpc_url, is_loopback, page_url, url_host, wait_port_closed
 from nue.viz.view_shot import find_chromium, has_colour, screenshot_page
 
 
@@ -164,6 +164,8 @@ class Viewer:
         try:
             self.rec.flush()
             self.rec.disconnect()
+            if self.cfg.serve:  # the gRPC server stops in the background: return once its port is free
+                wait_port_closed(self.cfg.host, self.cfg.grpc_port)
         finally:
             if self.page is not None:
                 self.page.close()

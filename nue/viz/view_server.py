@@ -71,6 +71,22 @@ def url_host(host: str, local: bool = False) -> str:
     return f"[{host}]" if ":" in host else host
 
 
+def wait_port_closed(host: str, port: int, timeout: float = 10.0) -> bool:
+    """Wait until nothing accepts connections on ``port`` of ``host`` (an interface; every interface is probed on the
+    loopback), at most ``timeout`` seconds: a server that stops in the background (rerun's gRPC sink after
+    ``disconnect``) has then let go of its port. Whether it did."""
+    probe = LOOPBACK if host in EVERY_INTERFACE else host.strip("[]")
+    end = time.monotonic() + timeout
+    while True:
+        with socket.socket(socket.AF_INET6 if ":" in probe else socket.AF_INET) as s:
+            s.settimeout(1.0)
+            if s.connect_ex((probe, port)) != 0:
+                return True
+        if time.monotonic() >= end:
+            return False
+        time.sleep(0.05)
+
+
 def grpc_url(host: str, grpc_port: int) -> str:
     """The data stream's address, as the page asks for it."""
     return f"rerun+http://{host}:{grpc_port}/proxy"
