@@ -363,10 +363,9 @@ Recurrent models train on ``batch_size // seq_len`` sequences, the same samples 
 
 V11 = V10.replace(name="v11", train_split="train_diverse", episodes_per_bin=3, heldout_per_bin=1,
                  select_set="select_diverse", eval_sets=("val252", "val_plain", "val_pale"))
-"""v10 trained in the 42 style-diverse ``train_diverse`` houses (issue 43, docs/styles.md), evaluated on both held-out
-style families: 3 training episodes per bin per house (v10's 378 training episodes, + 1 held-out per bin), 256k samples
-per model, selection on ``select_diverse``. Not the default: its NUE-GRU lost 5.2 SR points on val252 against v10's
-(2 x 3 seeds, [-10.8, +0.2]) while FR did not (results/diverse/README.md)."""
+"""v10 trained in the 42 style-diverse ``train_diverse`` houses (issue 43, docs/styles.md), on both held-out families:
+3 + 1 held-out episodes per bin per house (v10's 378 training episodes), 256k samples per model, ``select_diverse``.
+Not the default: its NUE-GRU lost 5.2 SR points on val252 against v10's (2 x 3 seeds, [-10.8, +0.2]); FR did not."""
 
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
