@@ -16,7 +16,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import write_result  # noqa: E402
 
-from nue.recipe import DEFAULT_RECIPE, get_recipe  # noqa: E402
+from nue.recipes import DEFAULT_RECIPE, get_recipe  # noqa: E402
 from nue.recipe_estimate import estimate, format_duration  # noqa: E402
 
 

@@ -14,8 +14,8 @@ from nue.outputs import check_output_dir, check_output_file
 
 def reproduce_cmd(
     out: Path = typer.Option(Path("runs/reproduce"), help="Run folder (recipe, demonstrations, runs, records, report)."),
-    # "v10" is nue.recipe.DEFAULT_RECIPE (a test checks; importing it would load torch for every command)
-    recipe: str = typer.Option("v10", help="Recipe preset (nue.recipe.RECIPES): v10 (the default: a recurrent NUE and "
+    # "v10" is nue.recipes.DEFAULT_RECIPE (a test checks; importing it would load torch for every command)
+    recipe: str = typer.Option("v10", help="Recipe preset (nue.recipes.RECIPES): v10 (the default: a recurrent NUE and "
                                            "ablations on the lean memory, 3 seeds for the compared rows, VGM, NRNS and "
                                            "the SLING rows; ~24 h on 2 cores), v6 (the shipped checkpoints' and "
                                            "RESULTS.md's; ~10 h), v7, v8, v9, v5, v3 or quick."),
@@ -31,7 +31,8 @@ def reproduce_cmd(
                                              "on a CPU, the same arithmetic rounded differently; not part of the recipe."),
 ):
     """Collect, train every model of Table I, evaluate on the fixed episode sets, report: one resumable run."""
-    from nue.recipe import format_estimate, get_recipe
+    from nue.recipe import format_estimate
+    from nue.recipes import get_recipe
     from nue.reproduce import RunFolders, check_recipe, remaining_estimate, reproduce
 
     A.positive("--workers", workers)

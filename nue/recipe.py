@@ -1,20 +1,13 @@
-"""Training recipes of ``nue reproduce`` as data: one frozen ``Recipe`` per way of building Table I, the named
-presets ``RECIPES``, and the training runs a recipe implies (every seed of every model, ``Recipe.training_runs``).
-The time estimate of a recipe, stage by stage (``estimate``), is :mod:`nue.recipe_estimate`'s (re-exported here).
+"""Training recipes of ``nue reproduce`` as data: the frozen ``Recipe`` (everything that decides the results of a run,
+a docstring per field), its demonstration collections (``Recipe.collections``) and the training runs it implies
+(every seed of every model, ``Recipe.training_runs``). The named presets (``v3`` ... ``v12``, ``quick``) are
+:mod:`nue.recipes`'; the time estimate of a recipe, stage by stage (``estimate``), is :mod:`nue.recipe_estimate`'s
+(re-exported here).
 
-A recipe fixes everything that changes the results: the demonstrations (expert, DART noise, episodes per
-bin), the models and their training (budget in wall-clock minutes on one core or in samples, batch,
-precision, map dropout, closed-loop selection, optional DAgger), and the evaluation sets. How the run is
-executed (worker processes, a Ray cluster, folders) is not part of it. ``v10``, the default (``DEFAULT_RECIPE``), is
-the recipe chosen in issue 37: a recurrent NUE and its ablations on the ``lean`` memory, 3 training seeds for the
-compared rows, the memory baselines and the SLING rows. ``v6`` is the recipe of the shipped ``checkpoints/*.pt``
-(``checkpoints/README.md``) and of today's RESULTS.md: ``v5`` with a budget of 256,000 samples per model, the same on
-any machine. ``v7`` is ``v6`` with 3 training seeds for NUE, the no-f_u and all-off ablations and FR
-(``Recipe.train_seeds``: a row of Table I is then the seeds' runs). ``v5`` trains each model for 50 minutes on one
-core (its models are ``results/v5/checkpoints/``), ``v3`` for 34 minutes with three snapshots competing in the
-selection; ``v8`` is ``v7`` with the SLING rows (NUE, FR and Nav-A3C wrapped in the last-mile module); ``v9`` is
-``v8`` on the ``lean`` memory with VGM and NRNS; ``quick`` is tiny everything, for CI (with 2 training seeds of NUE
-and its SLING row, so CI runs those paths end to end).
+A recipe fixes everything that changes the results: the demonstrations (expert, DART noise, episodes per bin, the
+training houses), the models and their training (budget in wall-clock minutes on one core or in samples, batch,
+precision, map dropout, closed-loop selection, optional DAgger), and the evaluation sets. How the run is executed
+(worker processes, a Ray cluster, folders) is not part of it.
 """
 
 from __future__ import annotations
@@ -63,6 +56,24 @@ def training_seed(seed: int, k: int) -> int:
 
 
 @dataclass(frozen=True)
+class Collection:
+    """One demonstration collection of a recipe (:meth:`Recipe.collections`)."""
+
+    split: str
+    """Training house split (``nue.scene.generator.TRAINING_SPLITS``)."""
+    episodes_per_bin: int
+    """Training episodes per difficulty bin per house."""
+    heldout_per_bin: int
+    """Held-out episodes per bin per house."""
+    houses: tuple[int, ...] = ()
+    """Indices of its houses (empty = all of ``split``)."""
+
+    @property
+    def houses_count(self) -> int:
+        return len(self.houses) or len(SPLITS[self.split])
+
+
+@dataclass(frozen=True)
 class TrainingRun:
     """One training run of a recipe: a model trained with one of its seeds (what a ``train/<name>`` stage trains)."""
 
@@ -101,6 +112,9 @@ class Recipe:
     ``train_diverse`` (42 houses drawn from the ``diverse`` style distribution, docs/styles.md)."""
     train_houses: tuple[int, ...] = ()
     """Indices of the training houses to collect in (empty = all of ``train_split``)."""
+    also_train: tuple[Collection, ...] = ()
+    """Further demonstrations every model trains on with ``train_split``'s, one per other training split (stage
+    ``collect/<split>``, folder ``demos_<split>``; same expert, noise and seed)."""
     memory: str = "fast"
     """Memory (NeRF) preset run online during collection (and stored in every checkpoint)."""
     # -- training --------------------------------------------------------------------------------
@@ -185,9 +199,14 @@ class Recipe:
         for s in self.eval_sets:
             if get_episode_set(s).split in TRAINING_SPLITS:
                 raise ConfigError("recipe", f"eval_sets: {s!r} is in training houses, not an evaluation set")
-        if (sel := get_episode_set(self.select_set)).split != self.train_split or not sel.bin_per_house:
+        splits = [c.split for c in self.collections()]
+        if (len(set(splits)) < len(splits) or not set(splits) <= set(TRAINING_SPLITS)
+                or any(c.episodes_per_bin < 1 or c.heldout_per_bin < 0 for c in self.also_train)):
+            raise ConfigError("recipe", "also_train: one collection (episodes_per_bin >= 1, heldout_per_bin >= 0) "
+                                        "per training split other than train_split")
+        if (sel := get_episode_set(self.select_set)).split not in splits or not sel.bin_per_house:
             raise ConfigError("recipe", f"select_set {self.select_set!r} is not a selection set of the "
-                                        f"{self.train_split!r} houses")
+                                        f"{' + '.join(map(repr, splits))} houses")
         if self.train_minutes <= 0 and self.train_samples <= 0 and not self.steps:
             raise ConfigError("recipe", "needs a training budget: train_minutes, train_samples or steps")
         if set(self.swap_maps) - set(self.models):
@@ -207,6 +226,11 @@ class Recipe:
             raise ConfigError("recipe", "train_seeds names a model twice")
         if any(not isinstance(n, int) or n < 1 for _, n in self.train_seeds):
             raise ConfigError("recipe", "train_seeds: a model's number of seeds must be an integer >= 1")
+
+    def collections(self) -> tuple[Collection, ...]:
+        """Every demonstration collection the models train on, ``train_split``'s first."""
+        return (Collection(self.train_split, self.episodes_per_bin, self.heldout_per_bin, self.train_houses),
+                *self.also_train)
 
     def row_of(self, model: str) -> str:
         """The Table I row (run and record name) ``model`` fills (``rows``; else its own name)."""
@@ -256,7 +280,8 @@ class Recipe:
 
     def summary(self) -> str:
         """One paragraph for RESULTS.md (the full recipe is the run's ``recipe.json``)."""
-        houses = len(self.train_houses) or len(SPLITS[self.train_split])
+        houses = " and ".join(f"{c.episodes_per_bin} + {c.heldout_per_bin} held-out episodes per bin in {c.houses_count} "
+                              f"{'training' if c.split == 'train' else c.split} houses" for c in self.collections())
         if self.train_samples > 0:
             budget = f"{self.train_samples:,} samples each"
         elif self.train_minutes > 0:
@@ -268,10 +293,11 @@ class Recipe:
         seeds = (f"; training seeds: {', '.join(f'{m} x{n}' for m, n in self.train_seeds)} "
                  f"({len(self.training_runs())} runs; the others once)" if self.train_seeds else "")
         last_mile = f"; SLING last mile: {', '.join(self.last_mile)}" if self.last_mile else ""
-        select = (f"best.pt by closed-loop selection among the last {self.select_candidates} snapshots on episodes/select"
+        select = (f"best.pt by closed-loop selection among the last {self.select_candidates} snapshots on "
+                  f"episodes/{self.select_set}"
                   if self.select == "closed_loop" else "best.pt by held-out action accuracy")
         return (f"{self.name}: demonstrations from the {self.expert} expert with DART noise {self.noise:g}, "
-                f"{self.episodes_per_bin} + {self.heldout_per_bin} held-out episodes per bin in {houses} training houses "
+                f"{houses} "
                 f"(memory preset {self.memory}); {len(self.models)} models ({', '.join(self.models)}){rows} trained for "
                 f"{budget}, batch {self.batch_size} samples, {self.precision}, map dropout {self.map_dropout:g} for the "
                 f"models that read maps{dagger}{seeds}; {select}; evaluated on {', '.join(self.eval_sets)} "
@@ -280,10 +306,13 @@ class Recipe:
 
     def to_dict(self) -> dict:
         """Plain JSON data (stored in the run folder; a resumed run must match it exactly). ``train_split`` and
-        ``select_set`` only when they are not ``train`` / ``select``, and ``last_mile`` and ``rows`` only when they name a model, so runs started before they existed resume."""
+        ``select_set`` only when they are not ``train`` / ``select``, and ``also_train``, ``last_mile`` and ``rows``
+        only when they name something, so runs started before they existed resume."""
         d = _jsonable(dataclasses.asdict(self))
         if d["train_split"] == "train":
             del d["train_split"]
+        if not d["also_train"]:
+            del d["also_train"]
         if d["select_set"] == "select":
             del d["select_set"]
         if not d["last_mile"]:
@@ -302,99 +331,3 @@ def _jsonable(x):
     if isinstance(x, (list, tuple)):
         return [_jsonable(v) for v in x]
     return x
-
-
-V3 = Recipe(name="v3")
-V5 = V3.replace(name="v5", train_minutes=50.0, select_candidates=2,
-                steps=(("nue", StepPlan(30_000, 1_500)), ("fr", StepPlan(80_000, 3_000)),
-                       ("nav_a3c", StepPlan(30_000, 1_000))))
-
-V6 = V5.replace(name="v6", train_minutes=0.0, train_samples=256_000)
-"""v5 with a budget in samples seen instead of minutes: the same for every model whatever the machine, its load or
-how many sessions a run spans (a time budget gives a slower machine's models fewer samples). 256,000 samples are
-4,000 optimiser steps of 64 samples (Nav-A3C: 8 sequences of 8); why that many: docs/history/checkpoints.md."""
-
-V7 = V6.replace(name="v7", train_seeds=(("nue", 3), ("abl_at_cbam", 3), ("abl_none", 3), ("fr", 3)))
-"""v6 with 3 training seeds for NUE, the no-f_u ablation (``abl_at_cbam``: f_u off, AT and CBAM on — NUE without
-f_u; ``abl_fu`` is the other way round, f_u alone), the all-off ablation (``abl_none``) and FR, so their rows and the
-comparisons between them pool seeds x episodes (issue 37, item 6); the other models train once. Only the training
-seed differs between a model's seeds."""
-
-V8 = V7.replace(name="v8", last_mile=("nue", "fr", "nav_a3c"))
-"""v7 with the SLING rows of Table I (issue 40): NUE (every seed), FR (every seed) and Nav-A3C also run wrapped in the
-last-mile module on every evaluation set."""
-
-TABLE_I_MODELS_LEAN: tuple[str, ...] = (tuple(f"{m}_lean" for m in ("nue", *ABLATION_PRESETS))
-                                        + ("fr", "nav_a3c", "vgm", "nrns"))
-"""Table I's trained rows on the ``lean`` memory: the ``_lean`` twins of NUE and its ablations (30 x 40 maps), FR,
-Nav-A3C and the memory baselines VGM and NRNS (which read no maps; MSM could not be identified, docs/msm.md)."""
-
-MEMORY_BASELINE_STEPS: tuple[tuple[str, StepPlan], ...] = (("vgm", StepPlan(30_000, 1_500)),
-                                                           ("nrns", StepPlan(30_000, 1_500)))
-"""Step plans of the memory baselines' kinds (under a samples budget only ``eval_every`` is read): VGM's held-out
-accuracy, NRNS's held-out distance error every 1,500 steps, as NUE's."""
-
-V9 = V8.replace(name="v9", memory="lean", models=TABLE_I_MODELS_LEAN, steps=V8.steps + MEMORY_BASELINE_STEPS,
-                rows=tuple((f"{m}_lean", m) for m in ("nue", *ABLATION_PRESETS)),
-                train_seeds=(("nue_lean", 3), ("abl_at_cbam_lean", 3), ("abl_none_lean", 3), ("fr", 3), ("nav_a3c", 3),
-                             ("vgm", 3), ("nrns", 3)),
-                swap_maps=("nue_lean",), last_mile=("nue_lean", "fr", "nav_a3c"))
-"""v8 on the ``lean`` memory (issue 38: 1.7x less per NUE episode step, 1.4x faster NUE training), with the memory
-baselines VGM and NRNS (issue 39) and 3 training seeds for NUE, the no-f_u and all-off ablations, FR, Nav-A3C, VGM
-and NRNS. A candidate, not the default: its ``_lean`` models fill NUE's and the ablations' rows (``rows``: run ``nue``
-trains ``nue_lean``) (results/lean/README.md has the
-comparison with ``fast`` that decides it)."""
-
-TABLE_I_MODELS_GRU_LEAN: tuple[str, ...] = (("nue_gru_lean",) + tuple(f"{m}_gru_lean" for m in ABLATION_PRESETS)
-                                            + ("fr", "nav_a3c", "vgm", "nrns"))
-"""Table I's trained rows with a recurrent NUE: ``nue_gru_lean`` and its ablations with the same 256-unit GRU after
-the fusion (``abl_*_gru_lean``), on the ``lean`` memory; the baselines as in v9."""
-
-V10 = V9.replace(name="v10", models=TABLE_I_MODELS_GRU_LEAN,
-                 rows=tuple((f"{m}_gru_lean", m) for m in ("nue", *ABLATION_PRESETS)),
-                 train_seeds=(("nue_gru_lean", 3), ("abl_at_cbam_gru_lean", 3), ("abl_none_gru_lean", 3), ("fr", 3),
-                              ("nav_a3c", 3), ("vgm", 3), ("nrns", 3)),
-                 swap_maps=("nue_gru_lean",), last_mile=("nue_gru_lean", "fr", "nav_a3c"))
-"""v9 with a recurrent NUE and its ablations carrying the same state, so an ablation row differs from NUE only by the
-components the paper switches off; the default (``DEFAULT_RECIPE``). Why it was chosen (issue 37): ``nue_gru_lean``
-reached 83.3% on val252 in each of 3 training seeds against reactive ``nue_lean``'s 77.8 / 78.2 / 79.0%, +5.0 points
-[+0.4, +9.8] pooled over seeds x episodes (results/gru/README.md); no other change to the hand-off measured better.
-Recurrent models train on ``batch_size // seq_len`` sequences, the same samples per step."""
-
-V11 = V10.replace(name="v11", train_split="train_diverse", episodes_per_bin=3, heldout_per_bin=1,
-                 select_set="select_diverse", eval_sets=("val252", "val_plain", "val_pale"))
-"""v10 trained in the 42 style-diverse ``train_diverse`` houses (issue 43, docs/styles.md), on both held-out families:
-3 + 1 held-out episodes per bin per house (v10's 378 training episodes), 256k samples per model, ``select_diverse``.
-Not the default: its NUE-GRU lost 5.2 SR points on val252 against v10's (2 x 3 seeds, [-10.8, +0.2]); FR did not."""
-
-RECIPES: dict[str, Recipe] = {
-    "v6": V6,
-    "v7": V7,
-    "v8": V8,
-    "v9": V9,
-    "v10": V10,
-    "v11": V11,
-    "v5": V5,
-    "v3": V3,
-    "quick": V3.replace(
-        name="quick", expert="geodesic", episodes_per_bin=1, heldout_per_bin=0, train_houses=(0,), train_minutes=0.0,
-        steps=(("nue", StepPlan(2, 2)), ("fr", StepPlan(2, 2)), ("nav_a3c", StepPlan(2, 2))), batch_size=4,
-        seq_len=2, warmup=1, precision="fp32", select="accuracy", eval_houses=(0,), eval_max_episodes=1,
-        eval_max_steps=5, experts=("expert",), train_seeds=(("nue", 2),), last_mile=("nue",)),
-}
-"""Named recipes: ``v10`` (the default: v9 with a recurrent NUE and ablations), ``v6`` (the shipped checkpoints' and
-RESULTS.md's: v5 with 256k samples per model instead of 50 minutes), ``v7`` (v6 with 3 training seeds for NUE,
-abl_at_cbam, abl_none and FR), ``v8`` (v7 with the SLING rows of NUE, FR and Nav-A3C), ``v9`` (v8 on the lean memory
-with VGM and NRNS, 3 seeds for 7 rows), ``v11`` (v10 trained in the style-diverse houses), ``v5``, ``v3`` (docs/history/checkpoints.md) and ``quick`` (CI; 2 training
-seeds of NUE, and its SLING row)."""
-
-DEFAULT_RECIPE = "v10"
-"""What ``nue reproduce`` runs without ``--recipe``."""
-
-
-def get_recipe(name: str) -> Recipe:
-    """A recipe preset by name; unknown -> ConfigError."""
-    try:
-        return RECIPES[name]
-    except KeyError:
-        raise ConfigError("--recipe", f"unknown recipe {name!r}; known: {', '.join(RECIPES)}") from None

@@ -121,9 +121,13 @@ def episode_counts(recipe: Recipe) -> dict[str, int]:
 
 
 def collection_episodes(recipe: Recipe) -> int:
-    """Demonstration episodes of a recipe: houses x 3 bins x (train + held-out per bin)."""
-    houses = len(recipe.train_houses) or len(SPLITS[recipe.train_split])
-    return houses * 3 * (recipe.episodes_per_bin + recipe.heldout_per_bin)
+    """Demonstration episodes of a recipe: over its collections, houses x 3 bins x (train + held-out per bin)."""
+    return sum(collection_sizes(recipe))
+
+
+def collection_sizes(recipe: Recipe) -> list[int]:
+    """Demonstration episodes of each collection of a recipe (``train_split``'s first)."""
+    return [c.houses_count * 3 * (c.episodes_per_bin + c.heldout_per_bin) for c in recipe.collections()]
 
 
 def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), compiled: bool = False,
@@ -134,13 +138,14 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
     evaluated (the swapped-maps control too) as a model of its own."""
     w = max(1, workers)
     out = []
-    houses = (len(recipe.train_houses) or len(SPLITS[recipe.train_split])) + sum(
+    houses = sum(c.houses_count for c in recipe.collections()) + sum(
         len(recipe.eval_houses) or len(SPLITS[EPISODE_SETS[s].split]) for s in recipe.eval_sets)
     out.append(StageEstimate("scenes", houses * cost.house_s, f"{houses} houses x {cost.house_s:.0f} s (kept if present)"))
-    n_eps = collection_episodes(recipe)
     length = dict(cost.steps_per_episode)[recipe.expert] * (1 + cost.noise_length_factor * recipe.noise)
-    out.append(StageEstimate("collect", n_eps * length * cost.collect_s_per_step / w,
-                             f"{n_eps} episodes x ~{length:.0f} steps x {cost.collect_s_per_step} s / {w} worker(s)"))
+    for c, n_eps in zip(recipe.collections(), collection_sizes(recipe)):
+        out.append(StageEstimate("collect" if c.split == recipe.train_split else f"collect/{c.split}",
+                                 n_eps * length * cost.collect_s_per_step / w,
+                                 f"{n_eps} episodes x ~{length:.0f} steps x {cost.collect_s_per_step} s / {w} worker(s)"))
     jobs = []
     select_eps = 21 if recipe.select == "closed_loop" else 0
     all_runs = recipe.training_runs()

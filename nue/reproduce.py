@@ -47,7 +47,7 @@ from nue.policy.checkpoint import git_commit
 from nue.policy.last_mile import SLING_PREFIX
 from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, format_duration, format_estimate
 from nue.reproduce_marker import EvalStageSummary, HousesSummary, ReportSummary, StageMarker, StageSummary
-from nue.reproduce_train import TrainJob, collect_config, run_training, train_config, train_model  # noqa: F401
+from nue.reproduce_train import TrainJob, collect_config, collect_configs, run_training, train_config, train_model  # noqa: F401
 from nue.scene.generator import SPLITS, ensure_house
 from nue.sim.episode_sets import get_episode_set
 from nue.train.collect import CollectSummary, collect
@@ -70,7 +70,13 @@ class RunFolders:
 
     @property
     def demos(self) -> Path:
+        """The demonstrations of the recipe's ``train_split``."""
         return self.out / "demos"
+
+    def demos_of(self, split: str, first: bool) -> Path:
+        """The demonstrations of a recipe's collection in ``split``: :attr:`demos` for the ``first`` (``train_split``),
+        ``demos_<split>`` for one of ``also_train``."""
+        return self.demos if first else self.out / f"demos_{split}"
 
     def run(self, name: str) -> Path:
         """The folder of a training run (``nue``, ``nue@s1``)."""
@@ -154,8 +160,7 @@ def eval_episodes_dir(recipe: Recipe, folders: RunFolders, set_name: str) -> Pat
 
 
 def _houses(recipe: Recipe) -> list[tuple[str, int]]:
-    train_houses = recipe.train_houses or tuple(range(len(SPLITS[recipe.train_split])))
-    out = [(recipe.train_split, i) for i in train_houses]
+    out = [(c.split, i) for c in recipe.collections() for i in (c.houses or range(len(SPLITS[c.split])))]
     for name in recipe.eval_sets:
         split = get_episode_set(name).split
         out += [(split, i) for i in (recipe.eval_houses or range(len(SPLITS[split]))) if (split, i) not in out]
@@ -208,7 +213,8 @@ def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, co
 
 def plan_stages(recipe: Recipe) -> list[str]:
     """Stage names of a recipe, in order."""
-    stages = ["scenes", "collect", *[f"train/{r.name}" for r in recipe.training_runs()]]
+    stages = ["scenes", "collect", *[f"collect/{c.split}" for c in recipe.collections()[1:]],
+              *[f"train/{r.name}" for r in recipe.training_runs()]]
     for name in recipe.eval_sets:
         stages.append(f"eval/{name}")
         for suffix, models in _EXTRA_ROWS.items():
@@ -268,10 +274,13 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
             for split, index in houses:
                 ensure_house(split, index, folders.scenes_root)
             finish(stage, time.perf_counter() - t0, HousesSummary([f"{s}_{k:02d}" for s, k in houses]))
-        elif stage == "collect":
-            header(i, stage, f"demonstrations -> {folders.demos}")
-            collected = collect(folders.demos, collect_config(recipe, device), folders.scenes_root, workers=workers,
-                                ray_address=ray_address, progress=progress)
+        elif stage == "collect" or stage.startswith("collect/"):
+            k = 0 if stage == "collect" else 1 + [c.split for c in recipe.also_train].index(stage[8:])
+            cfg = collect_configs(recipe, device)[k]
+            demos = folders.demos_of(cfg.split, k == 0)
+            header(i, stage, f"demonstrations in the {cfg.split} houses -> {demos}")
+            collected = collect(demos, cfg, folders.scenes_root, workers=workers, ray_address=ray_address,
+                                progress=progress)
             finish(stage, time.perf_counter() - t0, collected)
         elif stage.startswith("eval/"):
             header(i, stage, f"-> {folders.records(stage)}")
@@ -353,6 +362,15 @@ def _episode_time(folders: RunFolders, stage: str) -> str:
     return f" ({len(recs)} run{'' if len(recs) == 1 else 's'}, {format_duration(sum(r.wall_time for r in recs))} of episode time summed over workers)"
 
 
+def demonstrations_line(collected: list[CollectSummary]) -> str:
+    """RESULTS.md's demonstrations line: episodes, steps and the expert's SR over every collection of a run."""
+    if not collected:
+        return "? episodes, ? steps, expert SR 0.0%"
+    episodes = sum(c.episodes for c in collected)
+    sr = sum(c.expert_success_rate * c.episodes for c in collected) / max(episodes, 1)
+    return f"{episodes} episodes, {sum(c.steps for c in collected)} steps, expert SR {100 * sr:.1f}%"
+
+
 def write_results(recipe: Recipe, folders: RunFolders) -> Path:
     """``OUT/report/<table>/`` for every table and ``OUT/RESULTS.md`` (the first set in full, then the others)."""
     tables = report_tables(recipe, folders)
@@ -361,8 +379,7 @@ def write_results(recipe: Recipe, folders: RunFolders) -> Path:
         write_coverage_figure(recs, folders.out / "report" / name)
     main = recipe.eval_sets[0]
     walls = {s: stage_done(folders, s) for s in plan_stages(recipe) if s != "report"}
-    collect_marker = walls.get("collect")
-    collected = collect_marker.summary if collect_marker is not None else None
+    collected = [m.summary for s, m in walls.items() if s.partition("/")[0] == "collect" and m is not None]
     started = json.loads((folders.out / "recipe.json").read_text()).get("started", "?")
     meta = {
         "command": f"nue reproduce --recipe {recipe.name} --out {folders.out}",
@@ -370,9 +387,7 @@ def write_results(recipe: Recipe, folders: RunFolders) -> Path:
         "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}",
         "recipe": f"{recipe.summary()} (all values: {folders.out / 'recipe.json'})",
         "episodes": f"`{main}`: {get_episode_set(main).description}",
-        "demonstrations": (f"{collected.episodes} episodes, {collected.steps} steps, expert SR "
-                           f"{100 * collected.expert_success_rate:.1f}%" if isinstance(collected, CollectSummary)
-                           else "? episodes, ? steps, expert SR 0.0%"),
+        "demonstrations": demonstrations_line([c for c in collected if isinstance(c, CollectSummary)]),
         "stage wall-clock": "; ".join(f"{s} {format_duration(m.seconds)}{_episode_time(folders, s)}"
                                       for s, m in walls.items() if m),
     }

@@ -113,10 +113,10 @@ StageSummary = Union[HousesSummary, CollectSummary, TrainRunSummary, EvalStageSu
 
 
 def summary_type(stage: str) -> type[StageSummary]:
-    """The summary class of a stage name (``scenes``, ``collect``, ``train/<run>``, ``eval/<set>``, ``report``)."""
+    """The summary class of a stage name (``scenes``, ``collect``, ``collect/<split>``, ``train/<run>``, ``eval/<set>``, ``report``)."""
     if stage == "scenes":
         return HousesSummary
-    if stage == "collect":
+    if stage == "collect" or stage.startswith("collect/"):
         return CollectSummary
     if stage.startswith("train/"):
         return TrainRunSummary

@@ -56,12 +56,18 @@ def collection_model(recipe: Recipe) -> str:
     raise ConfigError("recipe", f"no model preset reads the {recipe.memory!r} memory's {size} maps")
 
 
+def collect_configs(recipe: Recipe, device: str = "cpu") -> tuple[CollectConfig, ...]:
+    """The demonstrations of a recipe (shared by all its training runs), one collection per training split
+    (:meth:`~nue.recipe.Recipe.collections`, ``train_split``'s first), in the layout of :func:`collection_model`."""
+    return tuple(CollectConfig(task=recipe.task, memory=recipe.memory, model=collection_model(recipe), split=c.split,
+                               houses=c.houses, episodes_per_bin=c.episodes_per_bin, heldout_per_bin=c.heldout_per_bin,
+                               seed=recipe.seed, device=device, expert=recipe.expert, noise=recipe.noise)
+                 for c in recipe.collections())
+
+
 def collect_config(recipe: Recipe, device: str = "cpu") -> CollectConfig:
-    """The demonstrations of a recipe (shared by all its training runs), in the layout of :func:`collection_model`."""
-    return CollectConfig(task=recipe.task, memory=recipe.memory, model=collection_model(recipe),
-                         split=recipe.train_split, houses=recipe.train_houses,
-                         episodes_per_bin=recipe.episodes_per_bin, heldout_per_bin=recipe.heldout_per_bin,
-                         seed=recipe.seed, device=device, expert=recipe.expert, noise=recipe.noise)
+    """The ``train_split`` collection of a recipe (the one DAgger rounds revisit)."""
+    return collect_configs(recipe, device)[0]
 
 
 def train_config(recipe: Recipe, run: str, folders: "RunFolders", device: str = "cpu", compile: bool = False) -> TrainConfig:
@@ -73,7 +79,8 @@ def train_config(recipe: Recipe, run: str, folders: "RunFolders", device: str = 
     model = r.model
     cfg = get_model_config(model)
     return TrainConfig(
-        data=str(folders.demos), out=str(folders.run(r.name)), model=model, steps=recipe.train_steps(model),
+        data=",".join(str(folders.demos_of(c.split, i == 0)) for i, c in enumerate(recipe.collections())),
+        out=str(folders.run(r.name)), model=model, steps=recipe.train_steps(model),
         batch_size=recipe.batch_for(model), seq_len=recipe.seq_len, lr=recipe.lr, warmup=recipe.warmup,
         time_budget_s=60 * recipe.train_minutes, budget_clock=recipe.budget_clock, eval_every=recipe.step_plan(model).eval_every, seed=r.seed,
         device=device, precision=recipe.precision, compile=compile, map_dropout=recipe.map_dropout if cfg.uses_memory_maps else 0.0,

@@ -24,7 +24,8 @@ from nue.evaluate.results_md import is_earlier_recipe
 from nue.evaluate.table import build_table, canonical_method, seed_run_name, split_seed
 from nue.policy.checkpoint import load_checkpoint, load_policy
 from nue.policy.config import ABLATION_PRESETS, get_model_config
-from nue.recipe import RECIPES, TABLE_I_MODELS, StepPlan, estimate, format_estimate, get_recipe, training_seed
+from nue.recipe import TABLE_I_MODELS, StepPlan, estimate, format_estimate, training_seed
+from nue.recipes import RECIPES, get_recipe
 from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, plan_stages, reproduce, train_config
 from nue.reproduce_marker import HousesSummary, StageMarker, TrainRunSummary
 from nue.reproduce_train import run_training
@@ -32,7 +33,7 @@ from nue.train.collect import CollectSummary
 
 EPISODES = Path(__file__).resolve().parents[1] / "episodes"
 pytestmark = pytest.mark.timeout(600)  # the quick run takes ~35 s of CPU; a loaded machine stretches the wall clock
-KILLED_AFTER = ("scenes", "collect", "train/nue")
+KILLED_AFTER = ("scenes", "collect", "collect/train_diverse", "train/nue")
 
 
 def _nue(*args) -> tuple[int, str]:
@@ -64,7 +65,7 @@ def run(tmp_path_factory):
     finally:
         del os.environ[FAIL_AFTER_STAGE_ENV]
     out = root / "run"
-    before = {part: _stamps(out / part) for part in ("demos", "runs/nue", "stages")}
+    before = {part: _stamps(out / part) for part in ("demos", "demos_train_diverse", "runs/nue", "stages")}
     second = _nue(*args)
     return out, first, second, before, args
 
@@ -103,6 +104,11 @@ def test_quick_run_prints_its_estimate_and_reaches_results(run):
     for table in ("val252", "val", "val_plain"):
         assert (out / "report" / table / "table.md").is_file() and (out / "report" / table / "coverage.png").is_file()
     assert json.loads((out / "recipe.json").read_text())["recipe"] == RECIPES["quick"].to_dict()
+    # two collections (quick's train_00 and train_diverse_00, 3 episodes each), and every model trained on both
+    assert "| demonstrations | 6 episodes, " in results
+    assert {json.loads((out / d / "manifest.json").read_text())["split"] for d in ("demos", "demos_train_diverse")} == {
+        "train", "train_diverse"}
+    assert train_config(RECIPES["quick"], "nue", RunFolders(out, Path(), Path())).data == f"{out / 'demos'},{out / 'demos_train_diverse'}"
 
 
 def test_a_killed_run_resumes_without_redoing_a_stage(run):
@@ -137,7 +143,8 @@ def test_a_recipe_with_dagger_rounds_trains_through_them(run, tmp_path):
                                          dagger_beta=0.5, dagger_steps=2, dagger_episodes_per_bin=1)
     folders = RunFolders(tmp_path / "run", out.parent / "scenes", EPISODES)
     folders.out.mkdir()
-    (folders.out / "demos").symlink_to(out / "demos", target_is_directory=True)
+    for demos in ("demos", "demos_train_diverse"):
+        (folders.out / demos).symlink_to(out / demos, target_is_directory=True)
     done = {}
     run_training(recipe, folders, ["train/fr"], workers=1, ray_address=None, device="cpu", progress=False,
                   finish=lambda stage, seconds, result: done.update({stage: result}))
@@ -284,7 +291,7 @@ def test_two_seeds_of_a_quick_run_differ_in_the_training_seed_only(run):
     a, b = (dict(headers[n].train_config) for n in ("nue", "nue@s1"))
     assert (a.pop("seed"), b.pop("seed")) == (0, training_seed(0, 1))
     assert (a.pop("out"), b.pop("out")) == (str(out / "runs" / "nue"), str(out / "runs" / "nue@s1"))
-    assert a == b and a["data"] == str(out / "demos")
+    assert a == b and a["data"] == f"{out / 'demos'},{out / 'demos_train_diverse'}"  # quick's two collections
     assert headers["nue"].manifest_hash == headers["nue@s1"].manifest_hash and headers["nue"].model == headers["nue@s1"].model
     w0, w1 = (load_checkpoint(out / "runs" / n / "best.pt")["model_state"] for n in ("nue", "nue@s1"))
     assert w0.keys() == w1.keys() and any(not torch.equal(w0[k], w1[k]) for k in w0)
@@ -322,11 +329,11 @@ def test_a_seed_index_gives_a_run_name_and_a_training_seed():
 
 def test_the_default_recipe_is_v10_the_recurrent_nue(tmp_path):
     """Issue 37's choice: without --recipe `nue reproduce` runs v10 (the recurrent NUE, its recurrent ablations, 3 seeds
-    for the compared rows); the command's default is nue.recipe.DEFAULT_RECIPE."""
+    for the compared rows); the command's default is nue.recipes.DEFAULT_RECIPE."""
     import inspect
 
     from nue.cli_reproduce import reproduce_cmd
-    from nue.recipe import DEFAULT_RECIPE
+    from nue.recipes import DEFAULT_RECIPE
 
     assert DEFAULT_RECIPE == "v10" and inspect.signature(reproduce_cmd).parameters["recipe"].default.default == DEFAULT_RECIPE
     v10 = get_recipe(DEFAULT_RECIPE)
@@ -532,7 +539,7 @@ def test_a_resumed_seeded_run_estimates_the_seeds_left(tmp_path):
 
 def test_train_split_selects_the_collection_houses_and_keeps_old_recipe_dicts():
     from nue.errors import ConfigError
-    from nue.recipe import get_recipe
+    from nue.recipes import get_recipe
     from nue.reproduce import _houses as houses_needed
     from nue.reproduce_train import collect_config
     from nue.scene.generator import SPLITS
@@ -559,3 +566,38 @@ def test_train_split_selects_the_collection_houses_and_keeps_old_recipe_dicts():
             v6.replace(train_split=split)
     with pytest.raises(ConfigError, match="eval_sets: 'select' is in training houses"):
         v6.replace(eval_sets=("val252", "select"))
+
+
+def test_v12_trains_every_model_on_both_house_sets_and_costs_both_collections():
+    """``also_train``: v12 is v10 plus v11's collection (21 ``train`` houses x 3 bins x 7 and 42 ``train_diverse`` x 3
+    x 4 = 441 + 504 episodes); both are stages, both folders are every model's data, and the estimate counts both."""
+    from nue.recipe import Collection
+    from nue.reproduce import _houses as houses_needed
+    from nue.reproduce_train import collect_configs
+    from nue.scene.generator import SPLITS
+
+    v10, v12 = get_recipe("v10"), get_recipe("v12")
+    assert [c.split for c in collect_configs(v12)] == ["train", "train_diverse"]
+    assert [(c.episodes_per_bin, c.heldout_per_bin) for c in collect_configs(v12)] == [(6, 1), (3, 1)]
+    assert plan_stages(v12)[:3] == ["scenes", "collect", "collect/train_diverse"]
+    assert "collect/train_diverse" not in plan_stages(v10) and "also_train" not in v10.to_dict()
+    assert v12.to_dict()["also_train"] == [{"split": "train_diverse", "episodes_per_bin": 3, "heldout_per_bin": 1,
+                                            "houses": []}]
+    folders = RunFolders(Path("/run"), Path("data/scenes"), Path("episodes"))
+    assert train_config(v12, "nue", folders).data == "/run/demos,/run/demos_train_diverse"
+    assert train_config(v10, "nue", folders).data == "/run/demos"
+    assert train_config(v12, "nue", folders).select_episodes == "episodes/select_diverse"
+    needed = houses_needed(v12)
+    assert sum(s == "train" for s, _ in needed) == 21 and sum(s == "train_diverse" for s, _ in needed) == 42
+    by10 = {s.stage: s for s in estimate(v10)}
+    by12 = {s.stage: s for s in estimate(v12)}
+    assert by12["collect"].seconds == by10["collect"].seconds
+    assert by12["collect/train_diverse"].seconds == pytest.approx(by10["collect"].seconds * 504 / 441)
+    assert "504 episodes" in by12["collect/train_diverse"].detail
+    assert "in 21 training houses and 3 + 1 held-out episodes per bin in 42 train_diverse houses" in v12.summary()
+    bad = [(Collection("train", 3, 1),), (Collection("val", 3, 1),), (Collection("train_diverse", 0, 1),),
+           (Collection("train_diverse", 3, 1), Collection("train_diverse", 1, 0))]
+    for also in bad:  # the main split again, a validation split, no episodes, a split twice
+        with pytest.raises(ConfigError, match="also_train"):
+            v10.replace(also_train=also)
+    assert len(SPLITS["train_diverse"]) == 42
