@@ -23,7 +23,8 @@ from nue.errors import ConfigError
 from nue.evaluate.table import METHODS, canonical_method, seed_run_name
 from nue.policy.config import ABLATION_PRESETS, get_model_config
 from nue.recipe_estimate import (  # noqa: F401  (re-exported: the time estimate of a recipe)
-    CostModel, StageEstimate, collection_episodes, episode_counts, estimate, format_duration, format_estimate,
+    CostModel, StageEstimate, collection_episodes, episode_counts, estimate, explore_counts, format_duration,
+    format_estimate,
 )
 from nue.sim.episode_sets import get_episode_set
 from nue.scene.generator import SPLITS, TRAINING_SPLITS
@@ -182,6 +183,18 @@ class Recipe:
     """Only the first N episodes per house (0 = all); smoke runs."""
     eval_max_steps: int = 0
     """Override the task's step limit (0 = keep it); smoke runs only."""
+    explore_sets: tuple[str, ...] = ()
+    """Episode sets from whose starts the exploration benchmark runs (stage ``explore/<set>``,
+    :mod:`nue.evaluate.exploration`: ``explore_steps`` steps with another house's goal photo, the seen floor area at 100
+    / 200 / 500 / 800 steps, RESULTS.md's ratios to the no-f_u ablation's row); none by default."""
+    explore_models: tuple[str, ...] = ()
+    """Models (every seed) the exploration benchmark runs, beside ``expert-explore`` and ``random``."""
+    explore_houses: tuple[int, ...] = ()
+    """Only these houses of each explore set (empty = all; at least two: a start's goal photo is the next house's)."""
+    explore_per_bin: int = 1
+    """Starts per difficulty bin per house: the first k episodes of each bin (0 = all)."""
+    explore_steps: int = 800
+    """Steps of every exploration run."""
     experts: tuple[str, ...] = ("expert", "expert-explore")
     """Reference rows run on every set: ``expert`` (geodesic), ``expert-explore``."""
     swap_maps: tuple[str, ...] = ("nue",)
@@ -211,6 +224,13 @@ class Recipe:
             raise ConfigError("recipe", "needs a training budget: train_minutes, train_samples or steps")
         if set(self.swap_maps) - set(self.models):
             raise ConfigError("recipe", "swap_maps names a model the recipe does not train")
+        if set(self.explore_models) - set(self.models) or (self.explore_models and not self.explore_sets):
+            raise ConfigError("recipe", "explore_models names a model the recipe does not train, or no explore_sets")
+        for s in self.explore_sets:
+            if get_episode_set(s).split in TRAINING_SPLITS:
+                raise ConfigError("recipe", f"explore_sets: {s!r} is in training houses")
+        if self.explore_steps < 1 or self.explore_per_bin < 0 or len(self.explore_houses) == 1:
+            raise ConfigError("recipe", "explore: steps >= 1, per_bin >= 0 and not exactly one house")
         if set(self.last_mile) - set(self.models):
             raise ConfigError("recipe", "last_mile names a model the recipe does not train")
         unknown = [r for _, r in self.rows if canonical_method(r) != r or r not in TABLE_I_KEYS]
@@ -293,6 +313,9 @@ class Recipe:
         seeds = (f"; training seeds: {', '.join(f'{m} x{n}' for m, n in self.train_seeds)} "
                  f"({len(self.training_runs())} runs; the others once)" if self.train_seeds else "")
         last_mile = f"; SLING last mile: {', '.join(self.last_mile)}" if self.last_mile else ""
+        if self.explore_sets:
+            last_mile += (f"; exploration benchmark from {', '.join(self.explore_sets)}'s starts: "
+                          f"{', '.join(self.explore_models)}, {self.explore_steps} steps")
         select = (f"best.pt by closed-loop selection among the last {self.select_candidates} snapshots on "
                   f"episodes/{self.select_set}"
                   if self.select == "closed_loop" else "best.pt by held-out action accuracy")
@@ -306,13 +329,16 @@ class Recipe:
 
     def to_dict(self) -> dict:
         """Plain JSON data (stored in the run folder; a resumed run must match it exactly). ``train_split`` and
-        ``select_set`` only when they are not ``train`` / ``select``, and ``also_train``, ``last_mile`` and ``rows``
-        only when they name something, so runs started before they existed resume."""
+        ``select_set`` only when they are not ``train`` / ``select``, and ``also_train``, ``last_mile``, ``rows`` and the
+        ``explore_*`` fields only when they name something, so runs started before they existed resume."""
         d = _jsonable(dataclasses.asdict(self))
         if d["train_split"] == "train":
             del d["train_split"]
         if not d["also_train"]:
             del d["also_train"]
+        if not d["explore_sets"]:
+            for k in ("explore_sets", "explore_models", "explore_houses", "explore_per_bin", "explore_steps"):
+                del d[k]
         if d["select_set"] == "select":
             del d["select_set"]
         if not d["last_mile"]:

@@ -58,6 +58,9 @@ class CostModel:
     step at ~22 ms, the depth map every 2nd at ~2 ms: ~7 ms a step, ~300 steps). NRNS: ~15 ms a step (30 ms with 4
     jobs on the 2 cores, 2026-12-06; docs/nrns.md measured 14) x ~450 steps; VGM: its selection's cost per episode
     x 1.3 (evaluation episodes run up to 800 steps, not 400); both approximate."""
+    eval_steps_per_episode: float = 350.0
+    """Mean steps of an evaluation episode behind ``eval_s_per_episode`` (the v6 run's NUE family: 325-381), to cost
+    the exploration benchmark's fixed-length runs (``random`` is costed as Nav-A3C, a light policy)."""
     memory_speedup: tuple[tuple[str, float], ...] = (("lean", 1.70),)
     """Per memory preset other than ``fast``: how much less an episode step of a model that reads the memory's maps
     costs (evaluation and closed-loop selection), a ratio to ``fast``. ``lean``: ``benchmarks/loop.py`` with
@@ -117,6 +120,16 @@ def episode_counts(recipe: Recipe) -> dict[str, int]:
         houses = len(recipe.eval_houses) or len(SPLITS[spec.split])
         per_house = 3 * per_house_bin(name)
         out[name] = houses * (min(per_house, recipe.eval_max_episodes) if recipe.eval_max_episodes else per_house)
+    return out
+
+
+def explore_counts(recipe: Recipe) -> dict[str, int]:
+    """Starts of the exploration benchmark per explore set: houses x 3 bins x ``explore_per_bin`` (all: the set's)."""
+    out = {}
+    for name in recipe.explore_sets:
+        houses = len(recipe.explore_houses) or len(SPLITS[EPISODE_SETS[name].split])
+        per_bin = per_house_bin(name)
+        out[name] = houses * 3 * (min(per_bin, recipe.explore_per_bin) if recipe.explore_per_bin else per_bin)
     return out
 
 
@@ -189,6 +202,14 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
             per_ep = sum(episode_s(r.model) + dict(cost.eval_s_per_episode)["sling"] for r in wrapped)
             out.append(StageEstimate(f"eval/{name}+sling", (n * per_ep * scale + len(wrapped) * cost.eval_overhead_s) / w,
                                      f"{n} episodes x {len(wrapped)} runs with SLING's last mile / {w} worker(s)"))
+    explorers = recipe.training_runs(recipe.explore_models)
+    for name, n in explore_counts(recipe).items():
+        steps = recipe.explore_steps / cost.eval_steps_per_episode  # episodes' worth of steps per run
+        per_start = steps * (sum(episode_s(r.model) for r in explorers)
+                             + sum(_kind_cost(cost.eval_s_per_episode, m) for m in ("expert-explore", "nav_a3c")))
+        methods = len(explorers) + 2
+        out.append(StageEstimate(f"explore/{name}", (n * per_start + methods * cost.eval_overhead_s) / w,
+                                 f"{n} starts x {methods} methods x {recipe.explore_steps} steps / {w} worker(s)"))
     out.append(StageEstimate("report", cost.report_s, "tables, coverage plot, RESULTS.md"))
     return out
 

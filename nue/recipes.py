@@ -83,10 +83,12 @@ V11 = V10.replace(name="v11", train_split="train_diverse", episodes_per_bin=3, h
 Not the default: its NUE-GRU lost 5.2 SR points on val252 against v10's (2 x 3 seeds, [-10.8, +0.2]); FR did not."""
 
 V12 = V10.replace(name="v12", also_train=(Collection("train_diverse", episodes_per_bin=3, heldout_per_bin=1),),
-                  select_set="select_diverse", eval_sets=("val252", "val_plain", "val_pale"))
+                  select_set="select_diverse", eval_sets=("val252", "val_plain", "val_pale"),
+                  explore_sets=("val252",), explore_models=TABLE_I_MODELS_GRU_LEAN)
 """v10's demonstrations in the 21 ``train`` houses and v11's in the 42 ``train_diverse`` (756 episodes, 63 houses),
 256k samples per model as every recipe, ``select_diverse``; on both held-out families (issue 43: the "mix" runs of
-results/mix/README.md)."""
+results/mix/README.md), and every model (every seed) in the exploration benchmark from 42 of val252's starts (issue
+42)."""
 
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
@@ -103,7 +105,8 @@ RECIPES: dict[str, Recipe] = {
         steps=(("nue", StepPlan(2, 2)), ("fr", StepPlan(2, 2)), ("nav_a3c", StepPlan(2, 2))), batch_size=4,
         seq_len=2, warmup=1, precision="fp32", select="accuracy", eval_houses=(0,), eval_max_episodes=1,
         eval_max_steps=5, experts=("expert",), train_seeds=(("nue", 2),), last_mile=("nue",),
-        also_train=(Collection("train_diverse", episodes_per_bin=1, heldout_per_bin=0, houses=(0,)),)),
+        also_train=(Collection("train_diverse", episodes_per_bin=1, heldout_per_bin=0, houses=(0,)),),
+        explore_sets=("val252",), explore_models=("nue",), explore_houses=(0, 1), explore_steps=5),
 }
 """Named recipes: ``v10`` (the default: v9 with a recurrent NUE and ablations), ``v6`` (the shipped checkpoints' and
 RESULTS.md's: v5 with 256k samples per model instead of 50 minutes), ``v7`` (v6 with 3 training seeds for NUE,

@@ -5,7 +5,8 @@ Stages, in order (each one calls the library function of its command, and each i
 
 ==================  ==========================================================================================
 ``scenes``          the training houses and the houses of every evaluation set (kept when intact)
-``collect``         ``nue collect`` into ``OUT/demos``
+``collect``         ``nue collect`` into ``OUT/demos``; ``collect/<split>``, each of ``Recipe.also_train`` into
+                    ``OUT/demos_<split>``
 ``train/<run>``     ``nue train --resume`` into ``OUT/runs/<run>`` (closed-loop selection included), one per training
                     run: ``<model>``, and ``<model>@s<k>`` for a model's further training seeds (``Recipe.train_seeds``);
                     the runs go side by side on ``--workers`` processes (one torch thread each) or Ray tasks
@@ -14,6 +15,9 @@ Stages, in order (each one calls the library function of its command, and each i
                     run's records are named after it, so the report pools a model's seeds into one row)
 ``eval/<set>+swap`` the swapped-maps control on each set (every seed of the ``swap_maps`` models); then
                     ``eval/<set>+sling``, the ``last_mile`` models (every seed) wrapped in SLING's last-mile module
+``explore/<set>``   ``nue explore``: the exploration benchmark from the set's starts (``Recipe.explore_sets``) into
+                    ``OUT/records/explore/<set>.jsonl`` (:mod:`nue.reproduce_eval` runs the ``eval`` and ``explore``
+                    stages)
 ``report``          ``nue report`` per set (``OUT/report/<set>/``: tables and coverage.png; a set that extends
                     another also reports the smaller one from the same records) and ``OUT/RESULTS.md`` (with each
                     stage's wall-clock in the call that finished it, and an evaluation's summed episode time)
@@ -31,7 +35,6 @@ from __future__ import annotations
 import json
 import os
 import platform
-import shutil
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -40,13 +43,14 @@ from typing import Callable
 from nue.errors import ConfigError, DataError
 from nue.evaluate.report import load_records, write_report
 from nue.evaluate.results_md import render_results_md
-from nue.evaluate.runner import EvalConfig, episode_files, run_eval
 from nue.jobs import fail_point
 from nue.output_lock import hold_output
 from nue.policy.checkpoint import git_commit
-from nue.policy.last_mile import SLING_PREFIX
-from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, format_duration, format_estimate
-from nue.reproduce_marker import EvalStageSummary, HousesSummary, ReportSummary, StageMarker, StageSummary
+from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, explore_counts, format_duration, format_estimate
+from nue.reproduce_eval import (EXPLORE_REFERENCES, EXTRA_ROWS, eval_episodes_dir, explore_records,  # noqa: F401
+                                report_tables, run_eval_stage, run_explore_stage, run_methods as _methods)
+from nue.reproduce_marker import (HousesSummary, ReportSummary, RunFolders, StageMarker, StageSummary,  # noqa: F401
+                                  stage_done)
 from nue.reproduce_train import TrainJob, collect_config, collect_configs, run_training, train_config, train_model  # noqa: F401
 from nue.scene.generator import SPLITS, ensure_house
 from nue.sim.episode_sets import get_episode_set
@@ -55,38 +59,6 @@ from nue.viz.coverage import write_coverage_figure
 
 FORMAT = "nue-reproduce/1"
 FAIL_AFTER_STAGE_ENV = "NUE_FAIL_AFTER_STAGE"
-
-
-@dataclass(frozen=True)
-class RunFolders:
-    """Where a reproduce run reads and writes."""
-
-    out: Path
-    """The run folder."""
-    scenes_root: Path
-    """Generated houses (shared with other commands; kept when intact)."""
-    episodes_root: Path
-    """The committed episode sets (``episodes/``: ``val``, ``val252``, ``val_plain``, ``select``)."""
-
-    @property
-    def demos(self) -> Path:
-        """The demonstrations of the recipe's ``train_split``."""
-        return self.out / "demos"
-
-    def demos_of(self, split: str, first: bool) -> Path:
-        """The demonstrations of a recipe's collection in ``split``: :attr:`demos` for the ``first`` (``train_split``),
-        ``demos_<split>`` for one of ``also_train``."""
-        return self.demos if first else self.out / f"demos_{split}"
-
-    def run(self, name: str) -> Path:
-        """The folder of a training run (``nue``, ``nue@s1``)."""
-        return self.out / "runs" / name
-
-    def records(self, stage: str) -> Path:
-        return self.out / "records" / f"{stage.removeprefix('eval/')}.jsonl"
-
-    def marker(self, stage: str) -> Path:
-        return self.out / "stages" / f"{stage.replace('/', '__')}.json"
 
 
 @dataclass
@@ -137,33 +109,13 @@ def _now() -> str:
     return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
 
 
-def stage_done(folders: RunFolders, stage: str) -> StageMarker | None:
-    """The marker of a finished stage (its seconds, summary and finish time), or None."""
-    path = folders.marker(stage)
-    return StageMarker.read(path) if path.is_file() else None
-
-
 # --- stages ---------------------------------------------------------------------------------------------
-def eval_episodes_dir(recipe: Recipe, folders: RunFolders, set_name: str) -> Path:
-    """A set's episode folder: the committed one, or a copy of the recipe's houses of it in the run folder."""
-    source = folders.episodes_root / set_name
-    if not recipe.eval_houses:
-        return source
-    spec = get_episode_set(set_name)
-    target = folders.out / "episodes" / set_name
-    target.mkdir(parents=True, exist_ok=True)
-    for i in recipe.eval_houses:
-        name = f"{spec.split}_{i:02d}.json"
-        if not (target / name).is_file() or (target / name).read_bytes() != (source / name).read_bytes():
-            shutil.copyfile(source / name, target / name)
-    return target
-
-
 def _houses(recipe: Recipe) -> list[tuple[str, int]]:
     out = [(c.split, i) for c in recipe.collections() for i in (c.houses or range(len(SPLITS[c.split])))]
-    for name in recipe.eval_sets:
+    for name, houses in [(n, recipe.eval_houses) for n in recipe.eval_sets] + [(n, recipe.explore_houses)
+                                                                             for n in recipe.explore_sets]:
         split = get_episode_set(name).split
-        out += [(split, i) for i in (recipe.eval_houses or range(len(SPLITS[split]))) if (split, i) not in out]
+        out += [(split, i) for i in (houses or range(len(SPLITS[split]))) if (split, i) not in out]
     return out
 
 
@@ -173,13 +125,6 @@ def _lines(path: Path) -> int:
         return 0
     with path.open("rb") as f:
         return sum(1 for line in f if line.strip())
-
-
-_EXTRA_ROWS: dict[str, Callable[[Recipe], tuple[str, ...]]] = {
-    "swap": lambda r: r.swap_maps,
-    "sling": lambda r: r.last_mile,
-}
-"""Evaluation stages after ``eval/<set>``, by suffix: the models (every seed) each runs."""
 
 
 def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, compiled: bool = False) -> list[StageEstimate]:
@@ -199,10 +144,16 @@ def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, co
             out.append(replace(s, detail=f"{s.detail}; {len(trained) - len(pending)} trained earlier"))
         elif s.stage.startswith("eval/"):
             name = s.stage.removeprefix("eval/")
-            extra = _EXTRA_ROWS.get(name.rpartition("+")[2]) if "+" in name else None
+            extra = EXTRA_ROWS.get(name.rpartition("+")[2]) if "+" in name else None
             methods = (len(recipe.training_runs(extra(recipe))) if extra is not None
                        else len(trained) + len(recipe.experts))
             runs = counts[name.partition("+")[0]] * methods
+            have = min(_lines(folders.records(s.stage)), runs)
+            out.append(replace(s, seconds=s.seconds * (1 - have / max(runs, 1)),
+                               detail=s.detail + (f"; {have:,} of {runs:,} runs recorded" if have else "")))
+        elif s.stage.startswith("explore/"):
+            runs = (explore_counts(recipe)[s.stage.removeprefix("explore/")]
+                    * (len(recipe.training_runs(recipe.explore_models)) + len(EXPLORE_REFERENCES)))
             have = min(_lines(folders.records(s.stage)), runs)
             out.append(replace(s, seconds=s.seconds * (1 - have / max(runs, 1)),
                                detail=s.detail + (f"; {have:,} of {runs:,} runs recorded" if have else "")))
@@ -217,10 +168,10 @@ def plan_stages(recipe: Recipe) -> list[str]:
               *[f"train/{r.name}" for r in recipe.training_runs()]]
     for name in recipe.eval_sets:
         stages.append(f"eval/{name}")
-        for suffix, models in _EXTRA_ROWS.items():
+        for suffix, models in EXTRA_ROWS.items():
             if models(recipe):
                 stages.append(f"eval/{name}+{suffix}")
-    return stages + ["report"]
+    return stages + [f"explore/{name}" for name in recipe.explore_sets] + ["report"]
 
 
 def reproduce(recipe: Recipe, out, scenes_root="data/scenes", episodes_root="episodes", workers: int = 1,
@@ -284,7 +235,11 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
             finish(stage, time.perf_counter() - t0, collected)
         elif stage.startswith("eval/"):
             header(i, stage, f"-> {folders.records(stage)}")
-            summary = _run_eval(recipe, folders, stage, workers, ray_address, device, progress)
+            summary = run_eval_stage(recipe, folders, stage, workers, ray_address, device, progress)
+            finish(stage, time.perf_counter() - t0, summary)
+        elif stage.startswith("explore/"):
+            header(i, stage, f"exploration benchmark -> {folders.records(stage)}")
+            summary = run_explore_stage(recipe, folders, stage, workers, ray_address, device, progress)
             finish(stage, time.perf_counter() - t0, summary)
         elif stage == "report":
             header(i, stage, f"-> {folders.out / 'report'}, RESULTS.md")
@@ -298,65 +253,10 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
     return ReproduceResult(ran, kept, Path(results_md) if results_md else md)
 
 
-def _methods(recipe: Recipe, folders: RunFolders, models) -> list[str]:
-    """``<run>=<best checkpoint>`` of every training run (every seed) of ``models``."""
-    out = []
-    for r in recipe.training_runs(models):
-        marker = stage_done(folders, f"train/{r.name}")
-        if marker is None:
-            raise DataError(folders.marker(f"train/{r.name}"), f"training run {r.name} has not finished in this run")
-        out.append(f"{r.name}={marker.train_run().best}")
-    return out
-
-
-def _run_eval(recipe: Recipe, folders: RunFolders, stage: str, workers, ray_address, device,
-              progress) -> EvalStageSummary:
-    name = stage.removeprefix("eval/")
-    set_name, _, suffix = name.partition("+")
-    swap = suffix == "swap"
-    spec = get_episode_set(set_name)
-    methods = _methods(recipe, folders, _EXTRA_ROWS[suffix](recipe) if suffix else recipe.models)
-    if suffix == "sling":
-        methods = [f"{SLING_PREFIX}{m}" for m in methods]
-    if not suffix:
-        methods += list(recipe.experts)
-    cfg = EvalConfig(episodes_dir=str(eval_episodes_dir(recipe, folders, set_name)), scenes_root=str(folders.scenes_root),
-                     split=spec.split, task=recipe.task, seed=recipe.seed, device=device, swap_maps=swap,
-                     max_episodes=recipe.eval_max_episodes, max_steps=recipe.eval_max_steps)
-    out = run_eval(methods, folders.records(stage), cfg, workers=workers, ray_address=ray_address, progress=progress)
-    return EvalStageSummary(str(out), set_name, methods)
-
-
-# --- report ---------------------------------------------------------------------------------------------
-def _subset(records, episodes_dir: Path) -> list:
-    """The records of the episodes in ``episodes_dir``'s files (the smaller set a larger one extends)."""
-    keys = set()
-    for f in episode_files(episodes_dir):
-        scene = f.name.removesuffix(".json")
-        keys |= {(scene, e["episode_id"]) for e in json.loads(f.read_text())["episodes"]}
-    return [r for r in records if (r.scene, r.episode_id) in keys]
-
-
-def report_tables(recipe: Recipe, folders: RunFolders) -> dict[str, list]:
-    """Records per reported table: every evaluation set with its swapped-maps and SLING rows, and each smaller
-    set a set extends, taken from the larger set's records."""
-    tables: dict[str, list] = {}
-    for name in recipe.eval_sets:
-        recs = load_records(folders.records(f"eval/{name}"))
-        spec = get_episode_set(name)
-        if spec.extends and (folders.episodes_root / spec.extends).is_dir():
-            tables[spec.extends] = _subset(recs, folders.episodes_root / spec.extends)
-        for suffix, models in _EXTRA_ROWS.items():
-            if models(recipe):
-                recs = recs + load_records(folders.records(f"eval/{name}+{suffix}"))
-        tables[name] = recs
-    return tables
-
-
 def _episode_time(folders: RunFolders, stage: str) -> str:
     """For an evaluation stage, its runs and their summed episode time from its records (a stage's marker times
     only the call that finished it; a stage resumed across calls spent more)."""
-    if not stage.startswith("eval/"):
+    if not stage.startswith(("eval/", "explore/")):
         return ""
     recs = load_records(folders.records(stage))
     return f" ({len(recs)} run{'' if len(recs) == 1 else 's'}, {format_duration(sum(r.wall_time for r in recs))} of episode time summed over workers)"
@@ -392,7 +292,7 @@ def write_results(recipe: Recipe, folders: RunFolders) -> Path:
                                       for s, m in walls.items() if m),
     }
     text = render_results_md(tables[main], meta, recipe.task, sets={k: v for k, v in tables.items() if k != main},
-                             main_name=main)
+                             main_name=main, explore=explore_records(recipe, folders))
     path = folders.out / "RESULTS.md"
     path.write_text(text)
     return path

@@ -2,7 +2,8 @@
 
 A marker is a :class:`StageMarker`: the stage's name, wall-clock, finish time and its summary, one dataclass per
 kind of stage. JSON is only the file format (:meth:`StageMarker.to_dict` / :meth:`StageMarker.from_dict`, which
-give back the same dict: a marker read and written again is the same file).
+give back the same dict: a marker read and written again is the same file). :class:`RunFolders` says where a run's
+files are, :func:`stage_done` reads a stage's marker.
 """
 
 from __future__ import annotations
@@ -77,7 +78,7 @@ class TrainRunSummary:
 
 @dataclass(frozen=True)
 class EvalStageSummary:
-    """An ``eval/<set>`` stage: its records file and what it evaluated."""
+    """An ``eval/<set>`` or ``explore/<set>`` stage: its records file and what it evaluated."""
 
     records: str
     """The records file (JSON lines)."""
@@ -113,14 +114,14 @@ StageSummary = Union[HousesSummary, CollectSummary, TrainRunSummary, EvalStageSu
 
 
 def summary_type(stage: str) -> type[StageSummary]:
-    """The summary class of a stage name (``scenes``, ``collect``, ``collect/<split>``, ``train/<run>``, ``eval/<set>``, ``report``)."""
+    """The summary class of a stage name (``scenes``, ``collect``, ``collect/<split>``, ``train/<run>``, ``eval/<set>``, ``explore/<set>``, ``report``)."""
     if stage == "scenes":
         return HousesSummary
     if stage == "collect" or stage.startswith("collect/"):
         return CollectSummary
     if stage.startswith("train/"):
         return TrainRunSummary
-    if stage.startswith("eval/"):
+    if stage.startswith(("eval/", "explore/")):
         return EvalStageSummary
     if stage == "report":
         return ReportSummary
@@ -163,3 +164,41 @@ class StageMarker:
         if not isinstance(self.summary, TrainRunSummary):
             raise ValueError(f"stage {self.stage!r} is not a training run")
         return self.summary
+
+
+@dataclass(frozen=True)
+class RunFolders:
+    """Where a reproduce run reads and writes."""
+
+    out: Path
+    """The run folder."""
+    scenes_root: Path
+    """Generated houses (shared with other commands; kept when intact)."""
+    episodes_root: Path
+    """The committed episode sets (``episodes/``: ``val``, ``val252``, ``val_plain``, ``select``)."""
+
+    @property
+    def demos(self) -> Path:
+        """The demonstrations of the recipe's ``train_split``."""
+        return self.out / "demos"
+
+    def demos_of(self, split: str, first: bool) -> Path:
+        """The demonstrations of a recipe's collection in ``split``: :attr:`demos` for the ``first`` (``train_split``),
+        ``demos_<split>`` for one of ``also_train``."""
+        return self.demos if first else self.out / f"demos_{split}"
+
+    def run(self, name: str) -> Path:
+        """The folder of a training run (``nue``, ``nue@s1``)."""
+        return self.out / "runs" / name
+
+    def records(self, stage: str) -> Path:
+        return self.out / "records" / f"{stage.removeprefix('eval/')}.jsonl"
+
+    def marker(self, stage: str) -> Path:
+        return self.out / "stages" / f"{stage.replace('/', '__')}.json"
+
+
+def stage_done(folders: RunFolders, stage: str) -> StageMarker | None:
+    """The marker of a finished stage (its seconds, summary and finish time), or None."""
+    path = folders.marker(stage)
+    return StageMarker.read(path) if path.is_file() else None

@@ -24,7 +24,7 @@ from nue.train.collect import CollectConfig
 from nue.train.dagger import DaggerConfig, run_dagger
 
 if TYPE_CHECKING:
-    from nue.reproduce import RunFolders
+    from nue.reproduce_marker import RunFolders
 
 
 @dataclass(frozen=True)

@@ -104,6 +104,11 @@ def test_quick_run_prints_its_estimate_and_reaches_results(run):
     for table in ("val252", "val", "val_plain"):
         assert (out / "report" / table / "table.md").is_file() and (out / "report" / table / "coverage.png").is_file()
     assert json.loads((out / "recipe.json").read_text())["recipe"] == RECIPES["quick"].to_dict()
+    # the exploration benchmark: 2 houses x 3 bins x 1 start, both seeds of NUE and the two references, 5 steps each
+    explored = load_records(out / "records" / "explore" / "val252.jsonl")
+    assert {r.method for r in explored} == {"nue", "nue@s1", "expert-explore", "random"} and len(explored) == 24
+    assert {r.scene for r in explored} == {"val_00", "val_01"} and all(len(r.extra["coverage"]) == 5 for r in explored)
+    assert "## Exploration benchmark from `val252`'s starts" in results and "explore/val252 " in results
     # two collections (quick's train_00 and train_diverse_00, 3 episodes each), and every model trained on both
     assert "| demonstrations | 6 episodes, " in results
     assert {json.loads((out / d / "manifest.json").read_text())["split"] for d in ("demos", "demos_train_diverse")} == {
@@ -139,7 +144,7 @@ def test_a_recipe_with_dagger_rounds_trains_through_them(run, tmp_path):
     (round 0), then the policy drives the recipe's training episodes with the expert labelling, and round 1
     retrains on both; the stage's best checkpoint is round 1's."""
     out = run[0]
-    recipe = get_recipe("quick").replace(name="quick_dagger", models=("fr",), swap_maps=(), last_mile=(), dagger_rounds=1,
+    recipe = get_recipe("quick").replace(name="quick_dagger", models=("fr",), swap_maps=(), last_mile=(), explore_models=(), dagger_rounds=1,
                                          dagger_beta=0.5, dagger_steps=2, dagger_episodes_per_bin=1)
     folders = RunFolders(tmp_path / "run", out.parent / "scenes", EPISODES)
     folders.out.mkdir()
@@ -601,3 +606,32 @@ def test_v12_trains_every_model_on_both_house_sets_and_costs_both_collections():
         with pytest.raises(ConfigError, match="also_train"):
             v10.replace(also_train=also)
     assert len(SPLITS["train_diverse"]) == 42
+
+
+def test_the_exploration_benchmark_is_a_stage_of_its_own_with_its_cost(tmp_path):
+    """``explore_sets``: v12 runs every model's every seed and the two references from 42 of val252's starts (14
+    houses x 3 bins x 1) for 800 steps; the stage is costed per step, and what a resumed run has recorded is left out;
+    recipes without it keep their stages and their stored dicts."""
+    from nue.recipe import CostModel
+    from nue.reproduce import remaining_estimate
+
+    v10, v12, c = get_recipe("v10"), get_recipe("v12"), CostModel()
+    assert plan_stages(v12)[-2:] == ["explore/val252", "report"] and not any(s.startswith("explore/") for s in plan_stages(v10))
+    assert "explore_sets" not in v10.to_dict() and v12.to_dict()["explore_models"] == list(v12.models)
+    (stage,) = [s for s in estimate(v12) if s.stage.startswith("explore/")]
+    runs = v12.training_runs(v12.models)
+    per_start = 800 / c.eval_steps_per_episode * (
+        sum(dict(c.eval_s_per_episode)["nue" if r.model.startswith(("nue", "abl")) else r.model]
+            / (1.70 if r.model.startswith(("nue", "abl")) else 1.0) for r in runs)
+        + dict(c.eval_s_per_episode)["expert-explore"] + dict(c.eval_s_per_episode)["nav_a3c"])
+    assert stage.seconds == pytest.approx(42 * per_start + (len(runs) + 2) * c.eval_overhead_s)
+    assert stage.detail.startswith(f"42 starts x {len(runs) + 2} methods x 800 steps")
+    folders = RunFolders(tmp_path, Path("data/scenes"), EPISODES)
+    folders.records("explore/val252").parent.mkdir(parents=True)
+    folders.records("explore/val252").write_text("{}\n" * 42 * 13)  # half of the 42 x 26 runs
+    (left,) = [s for s in remaining_estimate(v12, folders) if s.stage == "explore/val252"]
+    assert left.seconds == pytest.approx(stage.seconds / 2) and "546 of 1,092 runs recorded" in left.detail
+    for bad in ({"explore_models": ("nue_gru_lean",)}, {"explore_sets": ("select",)},
+                {"explore_sets": ("val252",), "explore_houses": (3,)}, {"explore_sets": ("val252",), "explore_steps": 0}):
+        with pytest.raises(ConfigError, match="explore"):
+            v10.replace(**bad)
