@@ -313,9 +313,8 @@ class Recipe:
         seeds = (f"; training seeds: {', '.join(f'{m} x{n}' for m, n in self.train_seeds)} "
                  f"({len(self.training_runs())} runs; the others once)" if self.train_seeds else "")
         last_mile = f"; SLING last mile: {', '.join(self.last_mile)}" if self.last_mile else ""
-        if self.explore_sets:
-            last_mile += (f"; exploration benchmark from {', '.join(self.explore_sets)}'s starts: "
-                          f"{', '.join(self.explore_models)}, {self.explore_steps} steps")
+        explore = (f"; exploration benchmark from {', '.join(self.explore_sets)}'s starts: "
+                   f"{', '.join(self.explore_models)}, {self.explore_steps} steps" if self.explore_sets else "")
         select = (f"best.pt by closed-loop selection among the last {self.select_candidates} snapshots on "
                   f"episodes/{self.select_set}"
                   if self.select == "closed_loop" else "best.pt by held-out action accuracy")
@@ -325,7 +324,7 @@ class Recipe:
                 f"{budget}, batch {self.batch_size} samples, {self.precision}, map dropout {self.map_dropout:g} for the "
                 f"models that read maps{dagger}{seeds}; {select}; evaluated on {', '.join(self.eval_sets)} "
                 f"(+ {', '.join(self.experts) or 'no experts'}; swapped maps: {', '.join(self.swap_maps) or 'none'}"
-                f"{last_mile})")
+                f"{last_mile}{explore})")
 
     def to_dict(self) -> dict:
         """Plain JSON data (stored in the run folder; a resumed run must match it exactly). ``train_split`` and
