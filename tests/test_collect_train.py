@@ -292,6 +292,18 @@ def test_resume_mismatches_names_changed_settings_and_data():
     assert resume_mismatches(stored, changed) == ["lr 0.001 -> 0.002", "precision_resolved 'fp32' -> 'bf16'",
                                                   "training data (manifest aaaa -> bbbb)"]
     assert resume_mismatches({}, changed) == []  # a checkpoint that recorded nothing
+    # every data folder's manifest, when the stored checkpoint recorded them (older ones: the first folder's only)
+    two = {**same, "data": {"manifests": ["aaaa", "cccc"]}}
+    assert resume_mismatches({**stored, "data": {"manifests": ["aaaa"]}}, two) == [
+        "training data folders (manifests aaaa -> aaaa+cccc)"]
+    assert resume_mismatches({**stored, "data": {"episodes": 3}}, two) == []
+    assert resume_mismatches({**stored, "data": {"manifests": ["aaaa", "cccc"]}}, two) == []
+    # the budget's clock matters only with a time budget
+    clocked = {"train_config": {"time_budget_s": 0.0, "budget_clock": "wall"}}
+    assert resume_mismatches(clocked, {"train_config": {"time_budget_s": 0.0, "budget_clock": "cpu"}}) == []
+    assert resume_mismatches({"train_config": {"time_budget_s": 60.0, "budget_clock": "wall"}},
+                             {"train_config": {"time_budget_s": 60.0, "budget_clock": "cpu"}}) == [
+        "budget_clock 'wall' -> 'cpu'"]
 
 
 @pytest.mark.slow
@@ -339,6 +351,10 @@ def test_resumed_training_refuses_other_settings(demos, tmp_path):
     with pytest.raises(CheckpointError, match=r"other settings \(lr 0.001 -> 0.002\)"):
         train(cfg.replace(lr=2e-3), resume=True, progress=False)
     assert train(cfg.replace(select_workers=2), resume=True, progress=False).steps_this_call == 0
+    second = tmp_path / "second"  # a second data folder (here a copy: same manifest) is other training data
+    shutil.copytree(demos, second)
+    with pytest.raises(CheckpointError, match=r"training data folders \(manifests (\w+) -> \1\+\1\)"):
+        train(cfg.replace(data=f"{demos},{second}"), resume=True, progress=False)
 
 
 @pytest.mark.parametrize("model, extra", [("nav_a3c", {}), ("nue", {"map_dropout": 0.5, "buffer_episodes": 3}),

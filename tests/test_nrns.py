@@ -195,6 +195,10 @@ def test_train_and_eval_nrns_end_to_end(tiny_demos, tmp_path, box_scene, box_nav
     ckpt = torch.load(run / "last.pt", weights_only=True)
     assert ckpt["step"] == 6 and ckpt["model_config"]["kind"] == "nrns"
     assert {"distance_mae", "distance_mae_offset", "baseline_mae"} <= set(ckpt["metrics"])
+    res = nue_here("train", "--data", tiny_demos, "--out", run, "--model", "nrns", "--steps", 6, "--batch-size", 8,
+                   "--warmup", 1, "--eval-every", 3, "--lr", "2e-3", "--resume")  # a resume with another lr is refused
+    assert res.returncode == 2 and "other settings (lr 0.001 -> 0.002)" in res.stderr, res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
     model, header = load_policy(run / "best.pt")  # the checkpoint round-trips
     assert header.model == get_model_config("nrns").for_task(get_task("paper"))
     agent, memory = load_agent(run / "best.pt", get_task("paper"))

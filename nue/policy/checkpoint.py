@@ -292,14 +292,21 @@ trained (``precision`` is compared as resolved; the data by its manifest hash; `
 
 def resume_mismatches(stored: dict, now: dict) -> list[str]:
     """What a resumed run would change: ``"name stored -> now"`` per differing training setting (fields in
-    both configs only, so older checkpoints compare what they recorded) and the data's manifest hash. Both
+    both configs only, so older checkpoints compare what they recorded) and the data's manifest hashes (the first
+    folder's, and every folder's in ``data["manifests"]`` when the stored checkpoint has them). Both
     arguments are checkpoint payloads / metas (``train_config``, ``manifest_hash``)."""
 
     def norm(v):
         return [norm(x) for x in v] if isinstance(v, (list, tuple)) else v
 
     a, b = dict(stored.get("train_config") or {}), dict(now.get("train_config") or {})
-    out = [f"{k} {a[k]!r} -> {b[k]!r}" for k in sorted((a.keys() & b.keys()) - RESUME_FREE) if norm(a[k]) != norm(b[k])]
+    free = RESUME_FREE
+    if not a.get("time_budget_s") and not b.get("time_budget_s"):
+        free = free | {"budget_clock"}  # which clock a budget counts on matters only with a budget
+    out = [f"{k} {a[k]!r} -> {b[k]!r}" for k in sorted((a.keys() & b.keys()) - free) if norm(a[k]) != norm(b[k])]
     if stored.get("manifest_hash") and stored["manifest_hash"] != now.get("manifest_hash"):
         out.append(f"training data (manifest {stored['manifest_hash']} -> {now.get('manifest_hash')})")
+    before, after = (d.get("manifests") for d in (stored.get("data") or {}, now.get("data") or {}))
+    if before is not None and before != after:  # every folder's manifest (checkpoints before it was recorded: the first)
+        out.append(f"training data folders (manifests {'+'.join(before)} -> {'+'.join(after or [])})")
     return out

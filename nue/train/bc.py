@@ -264,9 +264,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
     if cfg.exploit_weight == 1.0:  # as in checkpoints made before it existed
         del stored_cfg["exploit_weight"]
     meta = policy_meta(task, manifest.memory, model_cfg, manifest.scenes, manifest.hash(),
-                       {**stored_cfg, "precision_resolved": resolve_precision(cfg.precision, device)},
-                       {"episodes": data.n_episodes, "steps": len(data),
-                                                 "skipped": [str(p) for p, _ in data.skipped]})
+                       {**stored_cfg, "precision_resolved": resolve_precision(cfg.precision, device)}, data.summary())
     if resume and (out_dir / "last.pt").is_file():
         # Everything the next step depends on: weights, optimiser, schedule, clock, and per rank the
         # generator, the sampler's position and torch's generator (older checkpoints: the generator only).

@@ -105,6 +105,12 @@ class DemoSet:
     def n_episodes(self) -> int:
         return len(self.episodes)
 
+    def summary(self) -> dict:
+        """What a checkpoint records about its training data (``data``): episodes, steps, skipped files and the
+        manifest hash of every folder, in order (a resumed run compares these, so another second folder is refused)."""
+        return {"episodes": self.n_episodes, "steps": len(self), "skipped": [str(p) for p, _ in self.skipped],
+                "manifests": [m.hash() for m in self.manifests]}
+
     def locate(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(episode, step within it) of flat step indices ``idx`` (0 .. len - 1)."""
         ep = np.searchsorted(self.offsets, idx, side="right") - 1
