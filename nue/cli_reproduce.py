@@ -9,6 +9,7 @@ from typing import Optional
 import typer
 
 from nue import cli_args as A
+from nue.errors import ConfigError
 from nue.outputs import check_output_dir, check_output_file
 
 
@@ -29,15 +30,22 @@ def reproduce_cmd(
     estimate_only: bool = typer.Option(False, "--estimate", help="Print the time estimate and stop (what is left, if OUT holds a run)."),
     compile: bool = typer.Option(False, help="Train with torch.compile (nue train --compile): ~1.5x the samples/s of NUE "
                                              "on a CPU, the same arithmetic rounded differently; not part of the recipe."),
+    adopt: list[str] = typer.Option([], "--adopt", help="NAME=FOLDER: a collection (collect, collect/<split>) or "
+                                    "training run (nue, nue@s1) made outside the run with the stage's exact settings, "
+                                    "checked and put into the run folder so the stage resumes it; repeatable."),
 ):
     """Collect, train every model of Table I, evaluate on the fixed episode sets, report: one resumable run."""
     from nue.recipe import format_estimate
     from nue.recipes import get_recipe
     from nue.reproduce import RunFolders, check_recipe, remaining_estimate, reproduce
+    from nue.reproduce_adopt import Adoption
 
     A.positive("--workers", workers)
     A.device("--device", device)
     chosen = get_recipe("quick" if quick else recipe)
+    adoptions = [Adoption.parse(a) for a in adopt]
+    if adoptions and estimate_only:
+        raise ConfigError("--adopt", "adopts into a run; without --estimate (the estimate then counts what was adopted)")
     if estimate_only:
         if (out / "recipe.json").is_file():
             check_recipe(out, chosen)  # a run of another recipe: refused, as a rerun would be
@@ -49,7 +57,7 @@ def reproduce_cmd(
     if results_md:
         check_output_file(results_md)
     res = reproduce(chosen, out, scenes_root, episodes_root, workers=workers, ray_address=ray_address, device=device,
-                    results_md=results_md, echo=typer.echo, compile=compile)
+                    results_md=results_md, echo=typer.echo, compile=compile, adopt=adoptions)
     typer.echo(f"{len(res.ran)} stage(s) run, {len(res.kept)} kept from an earlier call; {res.results_md}")
 
 

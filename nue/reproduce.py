@@ -38,7 +38,7 @@ import platform
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 from nue.errors import ConfigError, DataError
 from nue.evaluate.report import load_records, write_report
@@ -47,6 +47,8 @@ from nue.jobs import fail_point
 from nue.output_lock import hold_output
 from nue.policy.checkpoint import git_commit
 from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, explore_counts, format_duration, format_estimate
+from nue.reproduce_adopt import Adoption, finished_runs
+from nue.reproduce_adopt import adopt as adopt_into_run
 from nue.reproduce_eval import (EXPLORE_REFERENCES, EXTRA_ROWS, eval_episodes_dir, explore_records,  # noqa: F401
                                 report_tables, run_eval_stage, run_explore_stage, run_methods as _methods)
 from nue.reproduce_marker import (HousesSummary, ReportSummary, RunFolders, StageMarker, StageSummary,  # noqa: F401
@@ -134,6 +136,7 @@ def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, co
     of an episode together, so that share is also a share of the cost)."""
     trained = [r.name for r in recipe.training_runs()]
     pending = [r for r in trained if stage_done(folders, f"train/{r}") is None]
+    pending = [r for r in pending if r not in finished_runs(recipe, folders, pending)]  # adopted: only a selection left
     counts = episode_counts(recipe)
     out = []
     for s in estimate(recipe, workers, compiled=compiled, runs=pending):
@@ -176,18 +179,22 @@ def plan_stages(recipe: Recipe) -> list[str]:
 
 def reproduce(recipe: Recipe, out, scenes_root="data/scenes", episodes_root="episodes", workers: int = 1,
               ray_address: str | None = None, device: str = "cpu", results_md=None,
-              echo: Callable[[str], None] = print, progress: bool = True, compile: bool = False) -> ReproduceResult:
+              echo: Callable[[str], None] = print, progress: bool = True, compile: bool = False,
+              adopt: Sequence[Adoption] = ()) -> ReproduceResult:
     """Run (or resume) ``recipe`` into ``out``, which this process holds meanwhile (one writer per output); see the
     module docstring. ``compile``: train with ``torch.compile`` (``TrainConfig.compile``: the same arithmetic,
-    rounded differently; a run may switch it between calls)."""
+    rounded differently; a run may switch it between calls). ``adopt``: collections and training runs made outside
+    the run with the stage's exact settings, checked and put into the run folder first (:mod:`nue.reproduce_adopt`)."""
     with hold_output(out):
         folders = RunFolders(Path(out), Path(scenes_root), Path(episodes_root))
+        check_recipe(folders.out, recipe)
+        for line in adopt_into_run(recipe, folders, list(adopt), device):
+            echo(line)
         return _reproduce(recipe, folders, workers, ray_address, device, results_md, echo, progress, compile)
 
 
 def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device, results_md, echo, progress,
                compile) -> ReproduceResult:
-    check_recipe(folders.out, recipe)
     est = {s.stage: s for s in remaining_estimate(recipe, folders, workers, compile)}
     echo(f"nue reproduce: recipe {recipe.name!r} -> {folders.out}; estimated wall-clock with {workers} worker(s):\n"
          f"{format_estimate(list(est.values()))}")

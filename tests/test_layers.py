@@ -19,7 +19,7 @@ LAYERS = [
     [{"nue.selection"}],
     [{"nue.viz"}],
     [{"nue.demo", "nue.recipe", "nue.recipes", "nue.recipe_estimate", "nue.reproduce", "nue.reproduce_eval",
-      "nue.reproduce_marker", "nue.reproduce_train", "nue.cli", "nue.cli_args", "nue.cli_config", "nue.cli_evaluate",
+      "nue.reproduce_adopt", "nue.reproduce_marker", "nue.reproduce_train", "nue.cli", "nue.cli_args", "nue.cli_config", "nue.cli_evaluate",
       "nue.cli_learn", "nue.cli_reproduce", "nue"}],
 ]
 """Layers bottom up; each a list of its parts (sets of modules and packages), side by side: a part may not import

@@ -28,7 +28,7 @@ from nue.recipe import TABLE_I_MODELS, StepPlan, estimate, format_estimate, trai
 from nue.recipes import RECIPES, get_recipe
 from nue.reproduce import FAIL_AFTER_STAGE_ENV, RunFolders, plan_stages, reproduce, train_config
 from nue.reproduce_marker import HousesSummary, StageMarker, TrainRunSummary
-from nue.reproduce_train import run_training
+from nue.reproduce_train import collect_configs, run_training
 from nue.train.collect import CollectSummary
 
 EPISODES = Path(__file__).resolve().parents[1] / "episodes"
@@ -635,3 +635,52 @@ def test_the_exploration_benchmark_is_a_stage_of_its_own_with_its_cost(tmp_path)
                 {"explore_sets": ("val252",), "explore_houses": (3,)}, {"explore_sets": ("val252",), "explore_steps": 0}):
         with pytest.raises(ConfigError, match="explore"):
             v10.replace(**bad)
+
+
+def test_adopted_collections_and_a_training_run_resume_and_other_settings_are_refused(run, tmp_path, capsys):
+    """``nue reproduce --adopt``: the quick run's two collections and a finished training run, put into a new run
+    folder, are what its stages make there: collecting writes no episode, the training run resumes at its last step
+    (0 steps, the same best.pt after its selection resumes from its records) and the estimate counts it trained. A run
+    adopted under another seed's name, a collection under another stage and an unknown name are refused before
+    anything is moved; the command line refuses a malformed --adopt with one line (exit 2)."""
+    from nue.errors import DataError
+    from nue.reproduce import remaining_estimate
+    from nue.reproduce_adopt import Adoption, adopt
+    from nue.selection import select_run
+    from nue.train.bc import train
+    from nue.train.collect import collect
+
+    out = run[0]
+    quick = get_recipe("quick")
+    new = RunFolders(tmp_path / "new", out.parent / "scenes", EPISODES)
+    good = [Adoption("collect", out / "demos"), Adoption("collect/train_diverse", out / "demos_train_diverse"),
+            Adoption("nue", out / "runs" / "nue")]
+    with pytest.raises(DataError, match=r"other settings than run nue@s1 .*seed 0 -> 1817441348"):
+        adopt(quick, new, [*good[:2], Adoption("nue@s1", out / "runs" / "nue")])
+    with pytest.raises(DataError, match="holds collection .* but stage collect of recipe 'quick' makes"):
+        adopt(quick, new, [Adoption("collect", out / "demos_train_diverse")])
+    with pytest.raises(ConfigError, match="no stage or training run 'vgm'"):
+        adopt(quick, new, [Adoption("vgm", out / "runs" / "nue")])
+    assert not (tmp_path / "new").exists()  # nothing moved
+
+    lines = adopt(quick, new, good)
+    assert [line.split(":")[0] for line in lines] == ["adopt collect", "adopt collect/train_diverse", "adopt nue"]
+    assert os.path.samefile(new.run("nue") / "last.pt", out / "runs" / "nue" / "last.pt")  # linked, not copied
+    one = next((out / "demos").rglob("*.nue"))
+    assert os.path.samefile(new.demos / one.relative_to(out / "demos"), one)
+    assert "exists, kept" in adopt(quick, new, good[2:])[0]
+    (train_left,) = [s for s in remaining_estimate(quick, new) if s.stage == "train"]
+    assert "1 trained earlier" in train_left.detail
+
+    episodes = {k: v for k, v in _stamps(new.demos).items() if k.endswith(".nue")}
+    collect(new.demos, collect_configs(quick)[0], new.scenes_root, progress=False)
+    assert {k: v for k, v in _stamps(new.demos).items() if k.endswith(".nue")} == episodes and episodes
+    res = train(train_config(quick, "nue", new), resume=True, progress=False, select=select_run)
+    assert res.steps_this_call == 0
+    assert (new.run("nue") / "best.pt").read_bytes() == (out / "runs" / "nue" / "best.pt").read_bytes()
+
+    capsys.readouterr()
+    for bad in (["--adopt", "nue"], ["--adopt", "nue=x", "--estimate"]):
+        code, _ = _nue("reproduce", "--quick", "--out", tmp_path / "cli", *bad)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and "--adopt" in err[0], err
