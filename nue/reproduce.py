@@ -47,6 +47,7 @@ from nue.jobs import fail_point
 from nue.output_lock import hold_output
 from nue.policy.checkpoint import git_commit
 from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, explore_counts, format_duration, format_estimate
+from nue.recipe_estimate import collection_sizes
 from nue.reproduce_adopt import Adoption, finished_runs
 from nue.reproduce_adopt import adopt as adopt_into_run
 from nue.reproduce_eval import (EXPLORE_REFERENCES, EXTRA_ROWS, eval_episodes_dir, explore_records,  # noqa: F401
@@ -131,7 +132,8 @@ def _lines(path: Path) -> int:
 
 def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, compiled: bool = False) -> list[StageEstimate]:
     """:func:`~nue.recipe.estimate` of what is left of a (resumed) run: stages finished earlier are marked done,
-    the training stage counts only the training runs not trained yet, and an evaluation stage is scaled by the share
+    the training stage counts only the training runs not trained yet (a run folder at its last step counts as trained),
+    a collection stage is scaled by the share of its episodes not collected yet, and an evaluation stage by the share
     of its (episode, method) runs its records file does not hold yet (the runs go episode by episode, every method
     of an episode together, so that share is also a share of the cost)."""
     trained = [r.name for r in recipe.training_runs()]
@@ -143,6 +145,13 @@ def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, co
         done = not pending if s.stage == "train" else stage_done(folders, s.stage) is not None
         if done:
             out.append(replace(s, seconds=0.0, done=True, detail="finished in an earlier call"))
+        elif s.stage == "collect" or s.stage.startswith("collect/"):
+            k = 0 if s.stage == "collect" else 1 + [c.split for c in recipe.also_train].index(s.stage[8:])
+            c = recipe.collections()[k]
+            want = collection_sizes(recipe)[k]
+            have = min(sum(1 for _ in folders.demos_of(c.split, k == 0).glob("*/*/*.nue")), want)
+            out.append(replace(s, seconds=s.seconds * (1 - have / max(want, 1)),
+                               detail=s.detail + (f"; {have:,} of {want:,} episodes collected" if have else "")))
         elif s.stage == "train" and len(pending) < len(trained):
             out.append(replace(s, detail=f"{s.detail}; {len(trained) - len(pending)} trained earlier"))
         elif s.stage.startswith("eval/"):

@@ -669,8 +669,10 @@ def test_adopted_collections_and_a_training_run_resume_and_other_settings_are_re
     one = next((out / "demos").rglob("*.nue"))
     assert os.path.samefile(new.demos / one.relative_to(out / "demos"), one)
     assert "exists, kept" in adopt(quick, new, good[2:])[0]
-    (train_left,) = [s for s in remaining_estimate(quick, new) if s.stage == "train"]
-    assert "1 trained earlier" in train_left.detail
+    left = {s.stage: s for s in remaining_estimate(quick, new)}
+    assert "1 trained earlier" in left["train"].detail
+    for stage in ("collect", "collect/train_diverse"):  # every episode there: nothing left to collect
+        assert left[stage].seconds == 0 and "3 of 3 episodes collected" in left[stage].detail, left[stage]
 
     episodes = {k: v for k, v in _stamps(new.demos).items() if k.endswith(".nue")}
     collect(new.demos, collect_configs(quick)[0], new.scenes_root, progress=False)
