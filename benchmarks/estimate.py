@@ -1,10 +1,10 @@
-"""The Table I estimate in ``make bench``: ``nue reproduce --estimate`` of the default recipe and of the candidate
-recipes, on 1 and 2 workers, eager and compiled (the cost model of ``nue.recipe_estimate``, whose fields say which
+"""The Table I estimate in ``make bench``: ``nue reproduce --estimate`` of the default recipe and of the one before
+it, on 1 and 2 workers, eager and compiled (the cost model of ``nue.recipe_estimate``, whose fields say which
 runs their numbers come from; nothing is timed here).
 
 Writes ``benchmarks/results/estimate.json``.
 
-    python benchmarks/estimate.py [--recipes v10,v11]
+    python benchmarks/estimate.py [--recipes v12,v10]
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from nue.recipe_estimate import estimate, format_duration  # noqa: E402
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--recipes", default=f"{DEFAULT_RECIPE},v11", help="comma-separated recipe presets")
+    ap.add_argument("--recipes", default=f"{DEFAULT_RECIPE},v10", help="comma-separated recipe presets")
     args = ap.parse_args()
     rows = {}
     print("| recipe | runs (models x seeds) | 1 worker | 2 workers | 2 workers, compiled | largest stage (2 workers) |")

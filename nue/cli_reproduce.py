@@ -15,11 +15,13 @@ from nue.outputs import check_output_dir, check_output_file
 
 def reproduce_cmd(
     out: Path = typer.Option(Path("runs/reproduce"), help="Run folder (recipe, demonstrations, runs, records, report)."),
-    # "v10" is nue.recipes.DEFAULT_RECIPE (a test checks; importing it would load torch for every command)
-    recipe: str = typer.Option("v10", help="Recipe preset (nue.recipes.RECIPES): v10 (the default: a recurrent NUE and "
+    # "v12" is nue.recipes.DEFAULT_RECIPE (a test checks; importing it would load torch for every command)
+    recipe: str = typer.Option("v12", help="Recipe preset (nue.recipes.RECIPES): v12 (the default: a recurrent NUE and "
                                            "ablations on the lean memory, 3 seeds for the compared rows, VGM, NRNS and "
-                                           "the SLING rows; ~24 h on 2 cores), v6 (the shipped checkpoints' and "
-                                           "RESULTS.md's; ~10 h), v7, v8, v9, v5, v3 or quick."),
+                                           "the SLING rows, trained in both house sets, evaluated on val252 and both "
+                                           "held-out style families, with the exploration benchmark; ~35 h on 2 "
+                                           "cores), v10 (the same in the train houses only; ~24 h), v6 (the shipped "
+                                           "checkpoints' and RESULTS.md's; ~10 h), v7, v8, v9, v11, v5, v3 or quick."),
     quick: bool = typer.Option(False, help="Tiny everything (the quick recipe): an end-to-end check in about a minute."),
     scenes_root: Path = typer.Option(Path("data/scenes"), help="Where the houses are (generated if missing)."),
     episodes_root: Path = typer.Option(Path("episodes"), help="The committed episode sets (val, val252, val_plain, select)."),

@@ -164,7 +164,7 @@ def test_a_rerun_with_another_recipe_is_refused(run):
     out, _, _, _, args = run
     with pytest.raises(ConfigError, match="noise"):
         reproduce(get_recipe("quick").replace(noise=0.1), out, echo=lambda s: None)
-    code, _ = _nue(*[a for a in args if a != "--quick"])  # the default recipe, v10, into the quick run's folder
+    code, _ = _nue(*[a for a in args if a != "--quick"])  # the default recipe, v12, into the quick run's folder
     assert code == 2
     assert json.loads((out / "recipe.json").read_text())["recipe"]["name"] == "quick"
 
@@ -332,20 +332,24 @@ def test_a_seed_index_gives_a_run_name_and_a_training_seed():
     assert is_earlier_recipe("nue_v5a") and is_earlier_recipe("nue_v6@s1+swap")
 
 
-def test_the_default_recipe_is_v10_the_recurrent_nue(tmp_path):
-    """Issue 37's choice: without --recipe `nue reproduce` runs v10 (the recurrent NUE, its recurrent ablations, 3 seeds
-    for the compared rows); the command's default is nue.recipes.DEFAULT_RECIPE."""
+def test_the_default_recipe_is_v12_the_recurrent_nue_in_both_house_sets(tmp_path):
+    """Issue 43's choice: without --recipe `nue reproduce` runs v12, issue 37's v10 (the recurrent NUE, its recurrent
+    ablations, 3 seeds for the compared rows) trained in both house sets and evaluated on both held-out style
+    families; the command's default is nue.recipes.DEFAULT_RECIPE."""
     import inspect
 
     from nue.cli_reproduce import reproduce_cmd
     from nue.recipes import DEFAULT_RECIPE
 
-    assert DEFAULT_RECIPE == "v10" and inspect.signature(reproduce_cmd).parameters["recipe"].default.default == DEFAULT_RECIPE
-    v10 = get_recipe(DEFAULT_RECIPE)
-    assert v10.memory == "lean" and dict(v10.rows)["nue_gru_lean"] == "nue" and get_model_config("nue_gru_lean").recurrent
-    assert dict(v10.train_seeds)["nue_gru_lean"] == 3 and dict(v10.train_seeds)["abl_at_cbam_gru_lean"] == 3
+    assert DEFAULT_RECIPE == "v12" and inspect.signature(reproduce_cmd).parameters["recipe"].default.default == DEFAULT_RECIPE
+    v12 = get_recipe(DEFAULT_RECIPE)
+    assert v12.memory == "lean" and dict(v12.rows)["nue_gru_lean"] == "nue" and get_model_config("nue_gru_lean").recurrent
+    assert dict(v12.train_seeds)["nue_gru_lean"] == 3 and dict(v12.train_seeds)["abl_at_cbam_gru_lean"] == 3
+    assert [c.split for c in v12.collections()] == ["train", "train_diverse"] and v12.select_set == "select_diverse"
+    assert v12.eval_sets == ("val252", "val_plain", "val_pale") and v12.explore_sets == ("val252",)
     code, out = _nue("reproduce", "--out", str(tmp_path / "none"), "--workers", "2", "--estimate")
-    assert code == 0 and out.startswith("recipe 'v10', 2 worker(s):") and "24 runs (models x seeds)" in out
+    assert code == 0 and out.startswith("recipe 'v12', 2 worker(s):") and "24 runs (models x seeds)" in out
+    assert "collect/train_diverse" in out and "eval/val_pale " in out and "explore/val252" in out
 
 
 def test_v7_is_v6_with_three_seeds_for_four_models_and_v6_is_unchanged():
