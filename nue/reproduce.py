@@ -48,7 +48,7 @@ from nue.output_lock import hold_output
 from nue.policy.checkpoint import git_commit
 from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, explore_counts, format_duration, format_estimate
 from nue.recipe_estimate import collection_sizes
-from nue.reproduce_adopt import Adoption, finished_runs
+from nue.reproduce_adopt import Adoption, collection_index, finished_runs
 from nue.reproduce_adopt import adopt as adopt_into_run
 from nue.reproduce_eval import (EXPLORE_REFERENCES, EXTRA_ROWS, eval_episodes_dir, explore_records,  # noqa: F401
                                 report_tables, run_eval_stage, run_explore_stage, run_methods as _methods)
@@ -146,7 +146,7 @@ def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, co
         if done:
             out.append(replace(s, seconds=0.0, done=True, detail="finished in an earlier call"))
         elif s.stage == "collect" or s.stage.startswith("collect/"):
-            k = 0 if s.stage == "collect" else 1 + [c.split for c in recipe.also_train].index(s.stage[8:])
+            k = collection_index(recipe, s.stage)
             c = recipe.collections()[k]
             want = collection_sizes(recipe)[k]
             have = min(sum(1 for _ in folders.demos_of(c.split, k == 0).glob("*/*/*.nue")), want)
@@ -242,7 +242,7 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
                 ensure_house(split, index, folders.scenes_root)
             finish(stage, time.perf_counter() - t0, HousesSummary([f"{s}_{k:02d}" for s, k in houses]))
         elif stage == "collect" or stage.startswith("collect/"):
-            k = 0 if stage == "collect" else 1 + [c.split for c in recipe.also_train].index(stage[8:])
+            k = collection_index(recipe, stage)
             cfg = collect_configs(recipe, device)[k]
             demos = folders.demos_of(cfg.split, k == 0)
             header(i, stage, f"demonstrations in the {cfg.split} houses -> {demos}")

@@ -51,7 +51,8 @@ class Adoption:
         return cls(name.strip(), Path(folder.strip()))
 
 
-def _collection_index(recipe: Recipe, name: str) -> int:
+def collection_index(recipe: Recipe, name: str) -> int:
+    """Which of ``recipe.collections()`` the stage ``name`` (``collect``, ``collect/<split>``) makes."""
     splits = [c.split for c in recipe.collections()]
     if name == "collect":
         return 0
@@ -72,7 +73,7 @@ def check_adoption(recipe: Recipe, folders: RunFolders, a: Adoption, device: str
     if not a.source.is_dir():
         raise DataError(a.source, "not a folder (--adopt NAME=FOLDER)")
     if a.name == "collect" or a.name.startswith("collect/"):
-        k = _collection_index(recipe, a.name)
+        k = collection_index(recipe, a.name)
         want = planned_manifests(recipe, folders, device)[k]
         have = read_manifest(a.source).hash()
         if have != want:
