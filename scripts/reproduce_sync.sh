@@ -11,7 +11,10 @@
 #                                           seeded: the same manifest hash, which `nue train --resume` checks); once
 #                                           every model is trained the marker stays and evaluation goes on
 # RUN is the run's folder (`nue reproduce --out`; default runs/reproduce in the repository; a relative RUN is taken
-# from the current folder); results/reproduce/run is in the repository holding this script, wherever it is called from.
+# from the current folder). STORE is where it is kept (default results/reproduce/run in the repository holding this
+# script; a relative STORE is taken from the repository). CHECKPOINTS=0 keeps each best.pt's sha256 (best.sha256)
+# instead of the file: restore then drops the markers of the runs whose best.pt is missing, so they train again (a
+# run retrained on another CPU may round differently; its evaluation records are then refused, naming the method).
 # Then rerun the same `nue reproduce` command: finished stages are kept, the rest continues.
 set -euo pipefail
 self=$(realpath "$0")
@@ -19,7 +22,8 @@ root=$(dirname "$(dirname "$self")")
 run=${RUN:-$root/runs/reproduce}
 case "$run" in /*) ;; *) run=$PWD/$run ;; esac
 cd "$root"
-store=results/reproduce/run
+store=${STORE:-results/reproduce/run}
+checkpoints=${CHECKPOINTS:-1}
 case "${1:-}" in
   save)
     mkdir -p "$store/stages" "$store/records"
@@ -29,21 +33,43 @@ case "${1:-}" in
       [ -e "$marker" ] || continue
       model=$(basename "$marker" .json); model=${model#train__}
       mkdir -p "$store/runs/$model"
-      cp "$run/runs/$model/best.pt" "$store/runs/$model/"
+      if [ "$checkpoints" = 1 ]; then
+        cp "$run/runs/$model/best.pt" "$store/runs/$model/"
+      else
+        (cd "$run/runs/$model" && sha256sum best.pt) > "$store/runs/$model/best.sha256"
+      fi
       for f in "$run/runs/$model"/selection*; do [ -e "$f" ] && cp "$f" "$store/runs/$model/"; done
     done
-    for f in "$run"/records/*.jsonl; do [ -e "$f" ] && cp "$f" "$store/records/"; done
-    # a file git would not commit is not saved (session 1's best.pt files were lost to a .gitignore pattern)
-    ignored=$(git ls-files --others --ignored --exclude-standard -- "$store")
-    if [ -n "$ignored" ]; then echo "error: $store: git ignores $ignored" >&2; exit 2; fi
+    [ -d "$run/records" ] && cp -r "$run/records/." "$store/records/"  # with records/explore/
+    # in the repository, a file git would not commit is not saved (session 1's best.pt files were lost to a .gitignore
+    # pattern)
+    case "$store" in /*) ;; *)
+      ignored=$(git ls-files --others --ignored --exclude-standard -- "$store")
+      if [ -n "$ignored" ]; then echo "error: $store: git ignores $ignored" >&2; exit 2; fi ;;
+    esac
     du -sh "$store" ;;
   restore)
     mkdir -p "$run"
     cp -rn "$store"/. "$run"/
-    # the demonstrations are needed again only while a model is still to train
-    models=$(python3 -c "import json, sys; print(len(json.load(open(sys.argv[1]))['recipe']['models']))" "$run/recipe.json")
-    trained=$(find "$run/stages" -name 'train__*.json' | wc -l)
-    if [ ! -d "$run/demos" ] && [ "$trained" -lt "$models" ]; then rm -f "$run/stages/collect.json"; fi
+    # a training run whose best.pt was not kept (CHECKPOINTS=0) trains again
+    for marker in "$run"/stages/train__*.json; do
+      [ -e "$marker" ] || continue
+      name=$(basename "$marker" .json); name=${name#train__}
+      if [ ! -f "$run/runs/$name/best.pt" ]; then rm -f "$marker"; echo "train/$name: no best.pt kept, trains again"; fi
+    done
+    # the demonstrations are needed again only while a training run is still to train (the recipe's runs: every seed)
+    runs=$(python -c "import json, sys; from nue.recipes import get_recipe
+print(' '.join(r.name for r in get_recipe(json.load(open(sys.argv[1]))['recipe']['name']).training_runs()))" "$run/recipe.json")
+    left=0
+    for name in $runs; do [ -e "$run/stages/train__$name.json" ] || left=1; done
+    if [ "$left" = 1 ]; then
+      for marker in "$run"/stages/collect.json "$run"/stages/collect__*.json; do
+        [ -e "$marker" ] || continue
+        split=$(basename "$marker" .json); split=${split#collect}; split=${split#__}
+        demos=$run/demos${split:+_$split}
+        if [ ! -d "$demos" ]; then rm -f "$marker"; echo "collect${split:+/$split}: $demos missing, collected again"; fi
+      done
+    fi
     ls "$run/stages" ;;
   autosave)
     minutes=${2:-20}

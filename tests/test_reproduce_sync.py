@@ -1,0 +1,73 @@
+"""``scripts/reproduce_sync.sh`` on a hand-made run folder: ``save`` keeps the recipe, the stage markers, each trained
+run's ``best.pt`` (or, with ``CHECKPOINTS=0``, its sha256) and selection, and every records file (the exploration
+benchmark's sub-folder too) in ``STORE``; ``restore`` puts them into a fresh run folder and drops the markers of what
+must be made again there: a training run whose ``best.pt`` was not kept, and, while any training run of the recipe
+(every seed) is left, a collection whose demonstrations are missing."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "reproduce_sync.sh"
+pytestmark = pytest.mark.timeout(120)
+
+
+def _sync(command: str, run: Path, store: Path, checkpoints: int) -> subprocess.CompletedProcess:
+    env = {**os.environ, "RUN": str(run), "STORE": str(store), "CHECKPOINTS": str(checkpoints),
+           "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    return subprocess.run(["bash", str(SCRIPT), command], env=env, capture_output=True, text=True)
+
+
+@pytest.fixture
+def run(tmp_path) -> Path:
+    """A quick-recipe run with both collections made, NUE's two seeds trained and some records."""
+    out = tmp_path / "run"
+    (out / "stages").mkdir(parents=True)
+    (out / "recipe.json").write_text(json.dumps({"recipe": {"name": "quick"}}))
+    for stage in ("collect", "collect__train_diverse", "train__nue", "train__nue@s1"):
+        (out / "stages" / f"{stage}.json").write_text("{}")
+    for name in ("nue", "nue@s1"):
+        (out / "runs" / name).mkdir(parents=True)
+        (out / "runs" / name / "best.pt").write_bytes(name.encode() * 100)
+        (out / "runs" / name / "selection.json").write_text("{}")
+    (out / "records" / "explore").mkdir(parents=True)
+    (out / "records" / "val252.jsonl").write_text('{"a": 1}\n')
+    (out / "records" / "explore" / "val252.jsonl").write_text('{"b": 2}\n')
+    return out
+
+
+def test_save_without_checkpoints_keeps_hashes_and_restore_retrains_and_recollects(run, tmp_path):
+    store = tmp_path / "store"
+    res = _sync("save", run, store, checkpoints=0)
+    assert res.returncode == 0, res.stderr
+    assert not (store / "runs" / "nue" / "best.pt").exists()
+    digest = hashlib.sha256((run / "runs" / "nue" / "best.pt").read_bytes()).hexdigest()
+    assert (store / "runs" / "nue" / "best.sha256").read_text().split() == [digest, "best.pt"]
+    assert (store / "runs" / "nue@s1" / "selection.json").is_file()
+    assert (store / "records" / "explore" / "val252.jsonl").read_text() == '{"b": 2}\n'
+
+    fresh = tmp_path / "fresh"
+    res = _sync("restore", fresh, store, checkpoints=0)
+    assert res.returncode == 0, res.stderr
+    assert sorted(p.name for p in (fresh / "stages").iterdir()) == []  # both runs retrain, so both collections again
+    assert "train/nue@s1: no best.pt kept, trains again" in res.stdout
+    assert "collect/train_diverse: " in res.stdout and (fresh / "records" / "val252.jsonl").is_file()
+
+
+def test_save_with_checkpoints_and_restore_keeps_trained_runs_and_present_demonstrations(run, tmp_path):
+    store = tmp_path / "store"
+    assert _sync("save", run, store, checkpoints=1).returncode == 0
+    assert (store / "runs" / "nue" / "best.pt").read_bytes() == (run / "runs" / "nue" / "best.pt").read_bytes()
+    fresh = tmp_path / "fresh"
+    (fresh / "demos").mkdir(parents=True)  # the first collection is there, the second is not
+    res = _sync("restore", fresh, store, checkpoints=1)
+    assert res.returncode == 0, res.stderr
+    # quick trains 9 runs (8 models, NUE twice): 7 are left, so the missing collection is made again
+    assert sorted(p.stem for p in (fresh / "stages").iterdir()) == ["collect", "train__nue", "train__nue@s1"]
