@@ -1,24 +1,30 @@
-"""Publish a finished `nue reproduce` run as the repository's shipped rows (run once):
+"""Publish a finished `nue reproduce` run as the repository's shipped rows (once per recipe):
 
-    python scripts/reproduce_publish.py --run results/reproduce/run --previous v5
+    python scripts/reproduce_publish.py --run runs/reproduce_v12 --previous v6 --previous-checkpoints drop
 
-1. ``checkpoints/<model>.pt`` (the previous recipe's) move to ``results/<previous>/checkpoints/<model>_<previous>.pt``
-   and the run's ``runs/<model>/best.pt`` take their place;
-2. in ``results/records.jsonl``, ``records_val252.jsonl`` and ``records_val_plain.jsonl`` the previous recipe's
-   rows are renamed ``<method>_<previous>`` (``nue+swap`` -> ``nue_<previous>+swap``: RESULTS.md's "Earlier
-   recipes"), the experts' rows are replaced by the run's (the script counts how many differ: the simulator and
-   the experts are deterministic, so none should), and the run's records are added — ``records.jsonl`` gets
-   the run's ``val252`` records of the 84 episodes of ``episodes/val``. Every earlier row's ``extra.key`` becomes
-   ``<method>/<scene>/<episode_id>`` (``nue view --key`` finds a record by it; ``nue_v2``, ``nue_v3`` and ``nue_v4``
-   had all kept the key ``nue/...`` of the run that made them).
+1. **Checkpoints.** Every Table I row the run trained (the recipe's models under their row names) ships its seed-0
+   run: ``checkpoints/<row>.pt`` becomes ``RUN/runs/<row>/best.pt``. The other seeds are not shipped; every record
+   names its checkpoint's sha256 (``extra.settings.agent``). The files in ``checkpoints/`` before move to
+   ``results/<previous>/checkpoints/<row>_<previous>.pt`` (``--previous-checkpoints keep``) or are deleted (``drop``,
+   for the clone's size: their hashes stay in their records and their recipe rebuilds them). The shipped total must
+   stay within ``--max-mb`` (default 40, issue 42); ``--not-shipped ROW`` leaves a row's file out (say so in
+   ``checkpoints/README.md``). Nothing is changed when the check fails.
+2. **Records.** For each evaluation set of the recipe, ``results/records_<set>.jsonl`` (made if missing) gets the
+   run's ``records/<set>.jsonl``, ``<set>+swap.jsonl`` and ``<set>+sling.jsonl``; ``results/records.jsonl`` gets
+   those of ``val252`` on the 84 episodes of ``episodes/val``. The rows already there: the previous recipe's rows
+   are renamed ``<row>_<previous>`` (``nue+swap`` -> ``nue_v6+swap``, ``sling+fr`` -> ``sling+fr_v6``, ``nue@s1`` ->
+   ``nue_v6@s1``: RESULTS.md's "Earlier recipes"); earlier recipes' rows (``*_v<N>``) stay; the experts' rows are
+   replaced by the run's where it has them (the script counts those whose outcome differs: simulator and experts
+   are deterministic, so none should), else kept; any other row (a memory baseline's or SLING's experiment appended to the table) must be a copy
+   of a record committed elsewhere under ``results/`` and is removed, else the script stops naming it. Every kept
+   row's ``extra.key`` becomes ``<method>/<scene>/<episode_id>`` (``nue view --key`` finds a record by it).
+3. **Exploration.** ``results/explore_<set>.jsonl`` likewise from ``RUN/records/explore/<set>.jsonl`` (the references
+   ``expert-explore`` and ``random`` are replaced like the experts).
 
-Then regenerate RESULTS.md with the command the script prints (after updating RESULTS.meta.json by hand).
-``--root`` (default: the repository holding this script) and ``--run`` (default ``<root>/results/reproduce/run``)
-may be given relative to the current folder.
-``--partial`` skips the check that the run finished (for a preview into a copy: ``--root /tmp/copy``).
-``--table`` only prints the run's table for ``checkpoints/README.md`` (parameters, size, samples, closed-loop
-selection, and on the 84 episodes of ``episodes/val`` SR, SPL, collisions, P(forward | blocked), NUE minus it),
-computed from the run's files, and changes nothing.
+Then regenerate the derived files and RESULTS.md with the commands the script prints. ``--root`` (default: the
+repository holding this script) may be a copy (a preview); ``--partial`` skips the check that the run finished.
+``--table`` only prints the shipped rows' table for ``checkpoints/README.md`` and changes nothing.
+A problem is one line ``error: <path>: <problem>`` and exit status 2.
 """
 
 from __future__ import annotations
@@ -32,24 +38,40 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 """The repository this script belongs to."""
 
-SETS = {"records.jsonl": ("val252", "val"), "records_val252.jsonl": ("val252", None),
-        "records_val_plain.jsonl": ("val_plain", None)}
-"""results file -> (the run's evaluation set whose records it gets, the episode folder that subsets them)"""
-EXPERTS = ("expert", "expert-explore")
+SLING = "sling+"
+SWAP = "+swap"
 
 
-def fail(path, problem: str) -> None:
-    print(f"error: {path}: {problem}", file=sys.stderr)
-    sys.exit(2)
+class Refused(Exception):
+    """A check failed: (path, problem), reported as one line before anything is written."""
 
 
 def read_jsonl(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
-def renamed(method: str, models: set[str], previous: str) -> str:
-    base, swap = (method[:-5], "+swap") if method.endswith("+swap") else (method, "")
-    return f"{base}_{previous}{swap}" if base in models else method
+def write_jsonl(path: Path, rows: list[dict]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+    tmp.replace(path)
+
+
+def split_method(method: str) -> tuple[str, str, str, str]:
+    """``sling+nue@s1+swap`` -> (``sling+``, ``nue``, ``@s1``, ``+swap``); absent parts are ''."""
+    prefix = SLING if method.startswith(SLING) else ""
+    rest = method[len(prefix):]
+    swap = SWAP if rest.endswith(SWAP) else ""
+    rest = rest[:len(rest) - len(swap)]
+    base, at, k = rest.rpartition("@s")
+    if at and k.isdigit():
+        return prefix, base, f"@s{k}", swap
+    return prefix, rest, "", swap
+
+
+def renamed(method: str, rows: set[str], previous: str) -> str | None:
+    """The earlier-recipe name of a previous recipe's row (``nue+swap`` -> ``nue_v6+swap``); None for other rows."""
+    prefix, base, seed, swap = split_method(method)
+    return f"{prefix}{base}_{previous}{seed}{swap}" if base in rows else None
 
 
 def episode_keys(folder: Path) -> set[tuple[str, str]]:
@@ -59,118 +81,225 @@ def episode_keys(folder: Path) -> set[tuple[str, str]]:
     return keys
 
 
+def identity(r: dict) -> tuple:
+    return r["method"], r["scene"], str(r["episode_id"])
+
+
 def outcome(r: dict) -> tuple:
     return r["success"], r["steps"], r["collisions"], round(r["path_length"], 6)
 
 
-def publish_records(root: Path, run: Path, models: set[str], previous: str) -> None:
-    for name, (set_name, subset) in SETS.items():
-        path = root / "results" / name
-        old = read_jsonl(path)
-        if any(r["method"] == f"nue_{previous}" for r in old):
-            fail(path, f"already has {previous} rows renamed (published before?)")
-        new = []
-        for stage in (set_name, f"{set_name}+swap"):
-            f = run / "records" / f"{stage}.jsonl"
-            if f.exists():
-                new += read_jsonl(f)
-        if subset:
-            keys = episode_keys(root / "episodes" / subset)
-            new = [r for r in new if (r["scene"], str(r["episode_id"])) in keys]
-        ran = {(r["method"], r["scene"], str(r["episode_id"])): r for r in new}
-        kept, differ, rekeyed = [], 0, 0
-        for r in old:
-            if r["method"] in EXPERTS:
-                twin = ran.get((r["method"], r["scene"], str(r["episode_id"])))
-                differ += twin is not None and outcome(twin) != outcome(r)
-                if twin is not None:
-                    continue  # the run's record of the same expert episode replaces it
-            method = renamed(r["method"], models, previous)
-            key = f"{method}/{r['scene']}/{r['episode_id']}"  # `nue view --key` finds a row by it: one per row
-            rekeyed += r["extra"].get("key") != key
-            kept.append({**r, "method": method, "extra": {**r["extra"], "key": key}})
-        path.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in kept + new))
-        print(f"{path}: {len(old)} -> {len(kept) + len(new)} records ({len(new)} from the run; "
-              f"expert episodes whose outcome differs from the earlier record: {differ}; earlier rows re-keyed "
-              f"<method>/<scene>/<episode>: {rekeyed})")
+class Copies:
+    """Every record committed under ``results/`` outside the files being published, by identity -> outcome; read
+    only when a row needs it."""
+
+    def __init__(self, root: Path, exclude: set[Path]):
+        self.root, self.exclude, self._index = root, {p.resolve() for p in exclude}, None
+
+    def has(self, r: dict) -> bool:
+        if self._index is None:
+            self._index = {}
+            for f in sorted((self.root / "results").rglob("*.jsonl")):
+                if f.resolve() in self.exclude or f.name.endswith(".handoff.jsonl"):
+                    continue
+                for line in f.read_text().splitlines():
+                    if '"method"' in line:
+                        x = json.loads(line)
+                        if {"method", "scene", "episode_id", "success"} <= set(x):
+                            self._index[identity(x)] = outcome(x)
+        return self._index.get(identity(r)) == outcome(r)
 
 
-def publish_checkpoints(root: Path, run: Path, models: list[str], previous: str) -> None:
-    keep = root / "results" / previous / "checkpoints"
-    keep.mkdir(parents=True, exist_ok=True)
-    for m in models:
-        best = run / "runs" / m / "best.pt"
-        if not best.exists():
-            fail(best, "missing (the model was not trained in this run)")
-        target = keep / f"{m}_{previous}.pt"
-        if target.exists():
-            fail(target, "exists already (published before?)")
-        shutil.move(root / "checkpoints" / f"{m}.pt", target)
-        shutil.copyfile(best, root / "checkpoints" / f"{m}.pt")
-    size = sum(f.stat().st_size for f in (root / "checkpoints").glob("*.pt"))
-    print(f"checkpoints/: {len(models)} files replaced, {size / 2**20:.1f} MiB of .pt in all")
+def merge(path: Path, new: list[dict], prev_rows: set[str], previous: str, experts: set[str], copies: Copies) -> tuple[list[dict], str]:
+    """The rows of ``path`` (if it exists) after publishing ``new`` into it, and a line saying what changed."""
+    old = read_jsonl(path) if path.exists() else []
+    ran = {identity(r): r for r in new}
+    old_methods = {r["method"] for r in old}
+    kept, differ, removed = [], 0, 0
+    for r in old:
+        method = r["method"]
+        if method in experts:
+            twin = ran.get(identity(r))
+            if twin is not None:
+                differ += outcome(twin) != outcome(r)
+                continue  # the run's record of the same expert episode replaces it
+        elif (name := renamed(method, prev_rows, previous)) is not None:
+            method = name
+        elif not _earlier(method):
+            if not copies.has(r):
+                raise Refused(path, f"row {method!r} ({r['scene']}/{r['episode_id']}) is neither the previous recipe's "
+                                    "nor an earlier one's, and no copy of it is committed elsewhere under results/")
+            removed += 1
+            continue
+        if method != r["method"] and method in old_methods:
+            raise Refused(path, f"already has rows named {method!r} (published before?)")
+        key = f"{method}/{r['scene']}/{r['episode_id']}"
+        kept.append({**r, "method": method, "extra": {**r.get("extra", {}), "key": key}})
+    rows = kept + new
+    return rows, (f"{path}: {len(old)} -> {len(rows)} records ({len(new)} from the run; {removed} removed, copies "
+                  f"elsewhere; expert records whose outcome differs from the earlier one: {differ})")
 
 
-def checkpoint_table(root: Path, run: Path, models: list[str]) -> str:
-    """The markdown table of the run's models (needs the package: ``.venv/bin/python``)."""
-    from nue.evaluate.diagnose import record_diagnostics
+def _earlier(method: str) -> bool:
+    from nue.evaluate.table import is_earlier_recipe
+
+    return is_earlier_recipe(method)
+
+
+def plan_records(root: Path, run: Path, recipe, previous_recipe) -> list[tuple[Path, list[dict], str]]:
+    """(file, its rows after publishing, what changed) for every records and exploration file."""
+    from nue.evaluate.runner import EXPERT_METHODS
+
+    prev_rows = {t.name for t in previous_recipe.training_runs() if t.seed_index == 0}
+    experts = set(EXPERT_METHODS)  # not trained: the run's record replaces an earlier one, else that one stays
+    targets: list[tuple[Path, list[dict]]] = []
+    for s in recipe.eval_sets:
+        new = [r for stage in (s, f"{s}{SWAP}", f"{s}+sling") for f in [run / "records" / f"{stage}.jsonl"]
+               if f.exists() for r in read_jsonl(f)]
+        if not new:
+            raise Refused(run / "records" / f"{s}.jsonl", "missing: the run has no records of this set")
+        targets.append((root / "results" / f"records_{s}.jsonl", new))
+        if s == "val252":
+            keys = episode_keys(root / "episodes" / "val")
+            targets.append((root / "results" / "records.jsonl",
+                            [r for r in new if (r["scene"], str(r["episode_id"])) in keys]))
+    for s in recipe.explore_sets:
+        f = run / "records" / "explore" / f"{s}.jsonl"
+        if not f.exists():
+            raise Refused(f, "missing: the run has no exploration records of this set")
+        targets.append((root / "results" / f"explore_{s}.jsonl", read_jsonl(f)))
+    copies = Copies(root, {t[0] for t in targets})
+    out = []
+    for path, new in targets:
+        rows, line = merge(path, new, prev_rows, previous_recipe.name, experts, copies)
+        out.append((path, rows, line))
+    return out
+
+
+def plan_checkpoints(root: Path, run: Path, recipe, not_shipped: set[str], max_mb: float) -> list[str]:
+    """The rows whose seed-0 checkpoint ships; Refused when one is missing or the total is over ``max_mb``."""
+    rows = [t.name for t in recipe.training_runs() if t.seed_index == 0]
+    unknown = not_shipped - set(rows)
+    if unknown:
+        raise Refused(run / "recipe.json", f"--not-shipped {', '.join(sorted(unknown))}: not a row of this recipe "
+                                           f"(rows: {', '.join(rows)})")
+    shipped = [r for r in rows if r not in not_shipped]
+    for r in shipped:
+        if not (run / "runs" / r / "best.pt").is_file():
+            raise Refused(run / "runs" / r / "best.pt", "missing (the row was not trained in this run)")
+    sizes = {r: (run / "runs" / r / "best.pt").stat().st_size for r in shipped}
+    if sum(sizes.values()) > max_mb * 1e6:
+        listed = ", ".join(f"{r} {s / 1e6:.1f}" for r, s in sorted(sizes.items(), key=lambda x: -x[1]))
+        raise Refused(root / "checkpoints", f"{sum(sizes.values()) / 1e6:.1f} MB for {len(shipped)} rows is over "
+                                            f"--max-mb {max_mb:g} (MB: {listed}); leave rows out with --not-shipped")
+    return shipped
+
+
+def publish_checkpoints(root: Path, run: Path, shipped: list[str], previous: str, keep: bool) -> str:
+    folder = root / "checkpoints"
+    moved_to = root / "results" / previous / "checkpoints"
+    before = sorted(folder.glob("*.pt"))
+    if keep:
+        for f in before:
+            if (moved_to / f"{f.stem}_{previous}.pt").exists():
+                raise Refused(moved_to / f"{f.stem}_{previous}.pt", "exists already (published before?)")
+        moved_to.mkdir(parents=True, exist_ok=True)
+    for f in before:
+        if keep:
+            shutil.move(f, moved_to / f"{f.stem}_{previous}.pt")
+        else:
+            f.unlink()
+    for r in shipped:
+        shutil.copyfile(run / "runs" / r / "best.pt", folder / f"{r}.pt")
+    size = sum(f.stat().st_size for f in folder.glob("*.pt"))
+    fate = f"moved to {moved_to}" if keep else "deleted"
+    return f"{folder}: {len(before)} earlier files {fate}; {len(shipped)} rows shipped, {size / 1e6:.1f} MB in all"
+
+
+def checkpoint_table(root: Path, run: Path, recipe, shipped: list[str]) -> str:
+    """The markdown table of the shipped rows (needs the package: ``.venv/bin/python``)."""
     from nue.evaluate.metrics import summarize
-    from nue.evaluate.report import method_label, paired_differences
+    from nue.evaluate.report import method_label
+    from nue.evaluate.table import split_seed
+    from nue.policy.checkpoint import load_checkpoint, load_policy
     from nue.sim.record import EpisodeRecord
-    from nue.policy.checkpoint import load_policy
 
-    keys = episode_keys(root / "episodes" / "val")
-    recs = [EpisodeRecord.from_dict(r) for r in read_jsonl(run / "records" / "val252.jsonl")
-            if (r["scene"], str(r["episode_id"])) in keys]
-    diags = record_diagnostics(recs)
-    diffs = {d.method: d for d in paired_differences(recs, metrics=("sr",))}
-    lines = ["| file | model | parameters | size | samples (selected step / last) | closed-loop selection SR (21 "
-             "training-house episodes) | SR on the 84 val episodes | SPL | collisions / episode | P(forward \\| blocked) "
-             "| NUE − it (paired 95%) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for m in models:
-        best = run / "runs" / m / "best.pt"
+    recs = [EpisodeRecord.from_dict(r) for r in read_jsonl(run / "records" / "val252.jsonl")]
+    lines = ["| file | model preset | parameters | size | samples (selected step / last) | selection | SR on val252, "
+             "this seed | SR on val252, every seed (mean) | SPL, this seed |", "|---|---|---|---|---|---|---|---|---|"]
+    preset = {t.name: t.model for t in recipe.training_runs()}
+    for row in shipped:
+        best = run / "runs" / row / "best.pt"
         policy, header = load_policy(best)
-        params = sum(p.numel() for p in policy.parameters())
         cfg = header.train_config
-        per_step = cfg["batch_size"] * (8 if m == "nav_a3c" else 1)
-        sel = json.loads((run / "runs" / m / "selection.json").read_text())
-        chosen = next(c for c in sel["candidates"] if c["name"] == sel["selected"])
-        mine = [r for r in recs if r.method == m]
-        sr, spl = summarize(mine).sr, summarize(mine).spl
-        d = diags[m]
-        diff = "–" if m == "nue" else (lambda x: f"{-100 * x.mean:+.1f} [{-100 * x.hi:+.1f}, {-100 * x.lo:+.1f}]")(diffs[m])
-        lines.append(f"| `{m}.pt` | {method_label(m)} | {params:,} | {best.stat().st_size / 1e6:.1f} MB | "
-                     f"{chosen['step'] * per_step / 1000:.0f}k ({chosen['step']:,} / {cfg['steps']:,}) | "
-                     f"{round(chosen['sr'] * chosen['n'])} / {chosen['n']} | {100 * sr:.1f}% | {spl:.3f} | "
-                     f"{d.collisions_per_episode:.2f} | {100 * d.p_forward_after_blocked:.1f}% | {diff} |")
+        params = sum(p.numel() for p in policy.parameters())
+        per_step = recipe.samples_per_step(preset[row])
+        stored = load_checkpoint(best)
+        step, metrics = stored["step"], stored.get("metrics") or {}
+        sel_file = run / "runs" / row / "selection.json"
+        if sel_file.exists():
+            s = json.loads(sel_file.read_text())
+            chosen = next(c for c in s["candidates"] if c["name"] == s["selected"])
+            sel = f"closed-loop SR {round(chosen['sr'] * chosen['n'])} / {chosen['n']}"
+        elif "distance_mae" in metrics:
+            sel = f"held-out distance error {metrics['distance_mae']:.2f} m"
+        else:
+            sel = "the last step"
+        mine = summarize([r for r in recs if r.method == row])
+        seeds = [summarize([r for r in recs if r.method == m]).sr for m in sorted({r.method for r in recs})
+                 if split_seed(m)[0] == row]
+        lines.append(f"| `{row}.pt` | `{preset[row]}` ({method_label(row)}) | {params:,} | "
+                     f"{best.stat().st_size / 1e6:.1f} MB | {step * per_step / 1000:.0f}k ({step:,} / "
+                     f"{cfg['steps']:,}) | {sel} | {100 * mine.sr:.1f}% | {100 * sum(seeds) / len(seeds):.1f}% "
+                     f"({len(seeds)} seeds) | {mine.spl:.3f} |")
     return "\n".join(lines)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--run", type=Path, default=None, help="the run's folder (default ROOT/results/reproduce/run)")
-    ap.add_argument("--previous", required=True, help="name of the recipe being replaced, e.g. v5")
+    ap.add_argument("--run", type=Path, required=True, help="the run's folder (nue reproduce --out)")
+    ap.add_argument("--previous", required=True, help="the recipe being replaced, e.g. v6")
+    ap.add_argument("--previous-checkpoints", choices=("keep", "drop"), default="keep",
+                    help="move the replaced checkpoints to results/<previous>/checkpoints (keep) or delete them (drop)")
+    ap.add_argument("--not-shipped", action="append", default=[], metavar="ROW", help="a row whose file is not shipped")
+    ap.add_argument("--max-mb", type=float, default=40.0, help="the most checkpoints/ may hold, in MB (1e6 bytes)")
     ap.add_argument("--root", type=Path, default=ROOT, help="the repository (or a copy of it)")
     ap.add_argument("--partial", action="store_true", help="do not require the run's report stage")
     ap.add_argument("--table", action="store_true", help="only print the table for checkpoints/README.md")
-    a = ap.parse_args()
-    if a.run is None:
-        a.run = a.root / "results" / "reproduce" / "run"
-    recipe_file = a.run / "recipe.json"
-    if not recipe_file.exists():
-        fail(recipe_file, "missing: not a reproduce run")
-    models = list(json.loads(recipe_file.read_text())["recipe"]["models"])
-    if a.table:
-        print(checkpoint_table(a.root, a.run, models))
-        return
-    if not a.partial and not (a.run / "stages" / "report.json").exists():
-        fail(a.run / "stages", "the run has not finished (no report.json); --partial previews it")
-    publish_checkpoints(a.root, a.run, models, a.previous)
-    publish_records(a.root, a.run, set(models), a.previous)
-    # the 252-episode set leads (the targets are judged on it, as the run's own RESULTS.md does); the 84-episode
-    # set, which alone holds the v1-v4 rows, follows with its earlier-recipes table
-    print("next: update RESULTS.meta.json, then\n  nue report results/records_val252.jsonl --name val252 --set val=results/records.jsonl "
-          "--set val_plain=results/records_val_plain.jsonl --out results/report --results-md RESULTS.md")
+    a = ap.parse_args(argv)
+    sys.path.insert(0, str(ROOT))
+    from nue.errors import ConfigError
+    from nue.recipes import get_recipe
+
+    try:
+        recipe_file = a.run / "recipe.json"
+        if not recipe_file.exists():
+            raise Refused(recipe_file, "missing: not a reproduce run")
+        stored = json.loads(recipe_file.read_text())["recipe"]
+        try:
+            recipe, previous = get_recipe(stored["name"]), get_recipe(a.previous)
+        except ConfigError as e:
+            raise Refused(recipe_file, str(e)) from None
+        shipped = plan_checkpoints(a.root, a.run, recipe, set(a.not_shipped), a.max_mb)
+        if a.table:
+            print(checkpoint_table(a.root, a.run, recipe, shipped))
+            return
+        if not a.partial and not (a.run / "stages" / "report.json").exists():
+            raise Refused(a.run / "stages", "the run has not finished (no report.json); --partial previews it")
+        planned = plan_records(a.root, a.run, recipe, previous)  # every check before the first write
+        print(publish_checkpoints(a.root, a.run, shipped, previous.name, a.previous_checkpoints == "keep"))
+        for path, rows, line in planned:
+            write_jsonl(path, rows)
+            print(line)
+    except Refused as e:
+        path, problem = e.args
+        print(f"error: {path}: {problem}", file=sys.stderr)
+        sys.exit(2)
+    sets = " ".join(f"--set {s}=results/records_{s}.jsonl" for s in recipe.eval_sets if s != "val252")
+    explore = " ".join(f"--explore {s}=results/explore_{s}.jsonl" for s in recipe.explore_sets)
+    print("next: nue diagnose --records results/records_<set>.jsonl --handoff --episodes-dir episodes/<set> for each set; "
+          "update RESULTS.meta.json; then\n  nue report results/records_val252.jsonl --name val252 "
+          f"--set val=results/records.jsonl {sets} {explore} --out results/report --results-md RESULTS.md")
 
 
 if __name__ == "__main__":

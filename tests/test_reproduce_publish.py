@@ -1,0 +1,169 @@
+"""``scripts/reproduce_publish.py`` on a hand-made repository and a finished quick-recipe run: the seed-0 checkpoint of
+every row ships (the earlier ones kept or deleted), the previous recipe's rows are renamed, an earlier recipe's stay,
+an appended experiment's rows with a copy elsewhere leave, the experts' are replaced, the 84-episode file gets the
+``val`` subset, a new set's file is made, the exploration file is merged; every refusal is one line, exit 2, before
+anything is written."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from nue.recipes import get_recipe
+from nue.reproduce import check_recipe
+
+REPO = Path(__file__).resolve().parents[1]
+spec = importlib.util.spec_from_file_location("reproduce_publish", REPO / "scripts" / "reproduce_publish.py")
+publish = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(publish)
+pytestmark = pytest.mark.timeout(120)
+
+TEMPLATE = [json.loads(line) for line in (REPO / "results" / "mix" / "records_val252_fr_mix.jsonl").read_text().splitlines()
+            if '"scene": "val_00"' in line]  # 18 real records of one house: 6 of them are episodes/val's
+QUICK_ROWS = ["nue", "abl_none", "abl_fu", "abl_at_cbam", "abl_fu_cbam", "abl_fu_at", "fr", "nav_a3c"]
+
+
+def _rows(method: str, scene: str = "val_00", n: int = 18, success: bool | None = None) -> list[dict]:
+    rows = []
+    for r in TEMPLATE[:n]:
+        r = {**r, "method": method, "scene": scene, "extra": {**r["extra"], "key": f"old/{r['episode_id']}"}}
+        if success is not None:
+            r["success"] = success
+        rows.append(r)
+    return rows
+
+
+def _write(path: Path, rows: list[dict]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+
+def _methods(path: Path) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for line in path.read_text().splitlines():
+        m = json.loads(line)["method"]
+        counts[m] = counts.get(m, 0) + 1
+    return counts
+
+
+@pytest.fixture
+def setup(tmp_path):
+    """(repository, run): the repository holds v6-named rows, an earlier recipe's, an appended memory baseline's (with
+    its copy in results/memory_baselines/), the experts' and two v6 checkpoints; the run is a finished quick run."""
+    root, run = tmp_path / "repo", tmp_path / "run"
+    (root / "episodes" / "val").mkdir(parents=True)
+    shutil.copy(REPO / "episodes" / "val" / "val_00.json", root / "episodes" / "val")
+    (root / "checkpoints").mkdir()
+    for m in ("nue", "fr"):
+        (root / "checkpoints" / f"{m}.pt").write_bytes(f"v6 {m}".encode())
+    vgm = _rows("vgm")
+    _write(root / "results" / "memory_baselines" / "records_val252_vgm.jsonl", vgm)
+    old = _rows("nue") + _rows("nue+swap") + _rows("sling+nue") + _rows("fr_v5") + vgm + _rows("expert", success=False)
+    _write(root / "results" / "records_val252.jsonl", old)
+    _write(root / "results" / "records.jsonl", [r for r in old if r["episode_id"].endswith(("_000", "_001"))])
+    _write(root / "results" / "explore_val252.jsonl", _rows("nue", n=3) + _rows("random", n=3, success=False))
+
+    check_recipe(run, get_recipe("quick"))
+    for name in QUICK_ROWS + ["nue@s1"]:
+        (run / "runs" / name).mkdir(parents=True)
+        shutil.copy(REPO / "checkpoints" / "fr.pt", run / "runs" / name / "best.pt")
+    (run / "runs" / "nue" / "best.pt").write_bytes((run / "runs" / "nue" / "best.pt").read_bytes() + b"seed 0")
+    for s in ("val252", "val_plain"):
+        scene = "val_00" if s == "val252" else "val_plain_00"
+        _write(run / "records" / f"{s}.jsonl", [r for m in QUICK_ROWS + ["nue@s1", "expert"] for r in _rows(m, scene)])
+        _write(run / "records" / f"{s}+swap.jsonl", _rows("nue+swap", scene) + _rows("nue@s1+swap", scene))
+        _write(run / "records" / f"{s}+sling.jsonl", _rows("sling+nue", scene) + _rows("sling+nue@s1", scene))
+    _write(run / "records" / "explore" / "val252.jsonl",
+           [r for m in ("nue", "nue@s1", "expert-explore", "random") for r in _rows(m, n=3)])
+    (run / "stages").mkdir()
+    (run / "stages" / "report.json").write_text("{}")
+    return root, run
+
+
+def _publish(root: Path, run: Path, *args: str) -> int:
+    try:
+        publish.main(["--root", str(root), "--run", str(run), "--previous", "v6", *args])
+    except SystemExit as e:
+        return int(e.code)
+    return 0
+
+
+def _snapshot(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_a_finished_run_becomes_the_shipped_rows(setup, capsys):
+    root, run = setup
+    assert _publish(root, run) == 0, capsys.readouterr().err
+    shipped = sorted(p.stem for p in (root / "checkpoints").glob("*.pt"))
+    assert shipped == sorted(QUICK_ROWS)  # seed 0 of every row, not nue@s1
+    assert (root / "checkpoints" / "nue.pt").read_bytes() == (run / "runs" / "nue" / "best.pt").read_bytes()
+    assert (root / "results" / "v6" / "checkpoints" / "nue_v6.pt").read_bytes() == b"v6 nue"
+
+    val252 = _methods(root / "results" / "records_val252.jsonl")
+    assert {"nue_v6", "nue_v6+swap", "sling+nue_v6", "fr_v5"} <= set(val252)  # renamed; the earlier recipe's kept
+    assert "vgm" not in val252  # appended from results/memory_baselines/, where its copy stays
+    assert val252["expert"] == 18 and val252["nue"] == val252["nue@s1"] == val252["sling+nue@s1"] == 18
+    rows = [json.loads(line) for line in (root / "results" / "records_val252.jsonl").read_text().splitlines()]
+    # the run's expert records (15 of 18 successes, as the template's) replaced the old ones (all failures)
+    assert sum(r["success"] for r in rows if r["method"] == "expert") == 15
+    assert all(r["extra"]["key"] == f"{r['method']}/{r['scene']}/{r['episode_id']}" for r in rows
+               if r["method"].endswith("_v6") or r["method"].endswith("_v6+swap"))
+
+    val = _methods(root / "results" / "records.jsonl")
+    assert val["nue"] == val["nue@s1+swap"] == val["nue_v6"] == 6  # the 6 episodes of episodes/val
+    plain = _methods(root / "results" / "records_val_plain.jsonl")  # a set the repository had no file of
+    assert plain["nue"] == 18 and plain["sling+nue"] == 18 and not any(m.endswith("_v6") for m in plain)
+    explore = _methods(root / "results" / "explore_val252.jsonl")
+    assert explore == {"nue_v6": 3, "nue": 3, "nue@s1": 3, "expert-explore": 3, "random": 3}
+
+    out = capsys.readouterr().out
+    assert "8 rows shipped" in out and "1 removed" not in out and "18 removed, copies elsewhere" in out
+    assert "whose outcome differs from the earlier one: 15" in out  # the old expert rows were made to differ
+    # published twice: refused before anything changes
+    before = _snapshot(root)
+    assert _publish(root, run) == 2
+    assert "published before" in capsys.readouterr().err and _snapshot(root) == before
+
+
+def test_drop_deletes_the_replaced_checkpoints(setup, capsys):
+    root, run = setup
+    assert _publish(root, run, "--previous-checkpoints", "drop") == 0
+    assert not (root / "results" / "v6").exists() and len(list((root / "checkpoints").glob("*.pt"))) == 8
+
+
+def test_refusals_name_the_file_and_change_nothing(setup, capsys):
+    root, run = setup
+    before = _snapshot(root)
+    assert _publish(root, run, "--max-mb", "5") == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {root / 'checkpoints'}: ") and "over --max-mb 5" in err and "nue 2.2" in err
+    assert len(err.strip().splitlines()) == 1
+    assert _publish(root, run, "--not-shipped", "msm") == 2 and "not a row of this recipe" in capsys.readouterr().err
+    (run / "stages" / "report.json").unlink()
+    assert _publish(root, run) == 2 and "has not finished" in capsys.readouterr().err
+    (run / "stages" / "report.json").write_text("{}")
+    # a row nobody can account for: not the previous recipe's, not an earlier one's, no copy elsewhere
+    with (root / "results" / "records_val252.jsonl").open("a") as f:
+        f.write(json.dumps(_rows("mystery", n=1)[0]) + "\n")
+    before = _snapshot(root)
+    assert _publish(root, run) == 2
+    err = capsys.readouterr().err
+    assert "row 'mystery' (val_00/easy_000)" in err and "records_val252.jsonl" in err
+    assert _snapshot(root) == before
+
+
+def test_not_shipped_leaves_a_row_out_and_the_table_lists_the_rest(setup, capsys):
+    root, run = setup
+    assert _publish(root, run, "--not-shipped", "nav_a3c", "--table") == 0
+    table = capsys.readouterr().out.splitlines()
+    assert len(table) == 2 + 7 and not any("nav_a3c.pt" in line for line in table)
+    nue = next(line for line in table if line.startswith("| `nue.pt`"))
+    # the template records are FR's on val_00: 15 of 18 succeeded; both NUE seeds have the same records
+    sr = 100 * sum(r["success"] for r in TEMPLATE) / len(TEMPLATE)
+    assert f"| {sr:.1f}% | {sr:.1f}% (2 seeds) |" in nue and "`nue` (NUE (full))" in nue
+    assert _snapshot(root)["checkpoints/nue.pt"] == b"v6 nue"  # --table changes nothing
