@@ -251,13 +251,14 @@ def checkpoint_table(root: Path, run: Path, recipe, shipped: list[str]) -> str:
         lines.append(f"| `{row}.pt` | `{preset[row]}` ({method_label(row)}) | {params:,} | "
                      f"{best.stat().st_size / 1e6:.1f} MB | {step * per_step / 1000:.0f}k ({step:,} / "
                      f"{cfg['steps']:,}) | {sel} | {100 * mine.sr:.1f}% | {100 * sum(seeds) / len(seeds):.1f}% "
-                     f"({len(seeds)} seeds) | {mine.spl:.3f} |")
+                     f"({len(seeds)} seed{'s' if len(seeds) > 1 else ''}) | {mine.spl:.3f} |")
     return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--run", type=Path, required=True, help="the run's folder (nue reproduce --out)")
+    ap.add_argument("--run", type=Path, default=None,
+                    help="the run's folder (nue reproduce --out; default ROOT/results/reproduce/run, the v6 run's)")
     ap.add_argument("--previous", required=True, help="the recipe being replaced, e.g. v6")
     ap.add_argument("--previous-checkpoints", choices=("keep", "drop"), default="keep",
                     help="move the replaced checkpoints to results/<previous>/checkpoints (keep) or delete them (drop)")
@@ -271,6 +272,7 @@ def main(argv: list[str] | None = None) -> None:
     from nue.errors import ConfigError
     from nue.recipes import get_recipe
 
+    a.run = a.root / "results" / "reproduce" / "run" if a.run is None else a.run
     try:
         recipe_file = a.run / "recipe.json"
         if not recipe_file.exists():
