@@ -2,8 +2,10 @@
 # Keep what a multi-session `nue reproduce` run has proved in git, and put it back on a fresh machine.
 #   bash scripts/reproduce_sync.sh save     RUN -> results/reproduce/run (recipe, stage markers, the
 #                                           best.pt and selection summary of every finished model, records)
-#   bash scripts/reproduce_sync.sh autosave [MINUTES]  save every MINUTES (default 20) and commit the records and
-#                                           stage markers only (git commit -- <those paths>), until killed: a session
+#   bash scripts/reproduce_sync.sh commit   save, then commit the store but its best.pt files (git commit -- <store>,
+#                                           nothing else staged is committed): recipe, markers, records, selections,
+#                                           hashes
+#   bash scripts/reproduce_sync.sh autosave [MINUTES]  commit every MINUTES (default 20), until killed: a session
 #                                           that ends without warning keeps what its evaluation had recorded
 #   bash scripts/reproduce_sync.sh restore  results/reproduce/run -> RUN; without the demonstrations
 #                                           (8.7 GB, never committed) and with a model still to train, the collect
@@ -71,14 +73,20 @@ print(' '.join(r.name for r in get_recipe(json.load(open(sys.argv[1]))['recipe']
       done
     fi
     ls "$run/stages" ;;
+  commit)
+    RUN=$run bash "$self" save > /dev/null
+    n=$(cat "$store"/records/*.jsonl 2>/dev/null | wc -l)
+    # best.pt (CHECKPOINTS=1) is committed by hand when wanted: not every few minutes into the history
+    git add -- "$store" ":(exclude)$store/runs/*/best.pt"
+    if git diff --cached --quiet -- "$store"; then echo "nothing new"; exit 0; fi
+    git commit -q -m "reproduce run: $(ls "$store"/stages | wc -l) stages done, $n evaluation runs recorded (sync.sh)" \
+      -- "$store" ":(exclude)$store/runs/*/best.pt"
+    git log --oneline -1 ;;
   autosave)
     minutes=${2:-20}
     while true; do
       sleep $((60 * minutes))
-      RUN=$run bash "$self" save > /dev/null || continue
-      n=$(cat "$store"/records/*.jsonl 2>/dev/null | wc -l)
-      git add "$store/records" "$store/stages" 2>/dev/null || continue
-      git commit -q -m "reproduce run: evaluation records so far ($n runs recorded, sync.sh autosave)" -- "$store/records" "$store/stages" > /dev/null 2>&1 || true
+      RUN=$run bash "$self" commit > /dev/null 2>&1 || true
     done ;;
-  *) echo "usage: $0 save|restore|autosave [MINUTES]" >&2; exit 2 ;;
+  *) echo "usage: $0 save|restore|commit|autosave [MINUTES]" >&2; exit 2 ;;
 esac

@@ -71,3 +71,31 @@ def test_save_with_checkpoints_and_restore_keeps_trained_runs_and_present_demons
     assert res.returncode == 0, res.stderr
     # quick trains 9 runs (8 models, NUE twice): 7 are left, so the missing collection is made again
     assert sorted(p.stem for p in (fresh / "stages").iterdir()) == ["collect", "train__nue", "train__nue@s1"]
+
+
+def test_commit_keeps_everything_but_the_checkpoints_in_git_and_nothing_else_staged(run, tmp_path):
+    repo = tmp_path / "repo"
+    (repo / "scripts").mkdir(parents=True)
+    script = repo / "scripts" / "reproduce_sync.sh"
+    script.write_bytes(SCRIPT.read_bytes())
+    env = {**os.environ, "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
+           "GIT_COMMITTER_EMAIL": "t@t", "RUN": str(run), "STORE": "results/run", "CHECKPOINTS": "1",
+           "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    git = lambda *a: subprocess.run(["git", *a], cwd=repo, env=env, capture_output=True, text=True)  # noqa: E731
+    git("init", "-q")
+    (repo / "other.txt").write_text("staged by someone else\n")
+    git("add", "other.txt")
+
+    res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    committed = set(git("show", "--name-only", "--format=", "HEAD").stdout.split())
+    assert committed == {"results/run/recipe.json", "results/run/records/val252.jsonl",
+                         "results/run/records/explore/val252.jsonl", "results/run/runs/nue/selection.json",
+                         "results/run/runs/nue@s1/selection.json",
+                         *(f"results/run/stages/{s}.json" for s in ("collect", "collect__train_diverse", "train__nue",
+                                                                    "train__nue@s1"))}
+    assert "4 stages done, 1 evaluation runs recorded" in git("log", "-1", "--format=%s").stdout
+    assert (repo / "results" / "run" / "runs" / "nue" / "best.pt").is_file()  # saved, not committed
+    assert git("diff", "--cached", "--name-only").stdout.split() == ["other.txt"]  # still staged, not committed
+    res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
+    assert res.returncode == 0 and res.stdout.strip() == "nothing new"
