@@ -92,8 +92,9 @@ V12 = V10.replace(name="v12", also_train=(Collection("train_diverse", episodes_p
 results/mix/README.md), and every model (every seed) in the exploration benchmark from 42 of val252's starts (issue
 42). The default (``DEFAULT_RECIPE``), chosen in issue 43: its NUE-GRU reached 81.7 / 80.2 / 79.4% on val252 in 3
 training seeds against v10's 83.3% in each of 3, -2.9 points [-7.5, +1.6] pooled over seeds x episodes (the issue's
-"no loss on val252": the interval includes 0), and kept its level on the held-out families (seed 0: val_plain 87.7%,
-val_pale 81.3%, against v10's 86.1% and 78.2%), where v11 (the diverse houses alone) lost 5 points."""
+"no loss on val252": the interval includes 0), and kept or raised its level on the held-out families (3 seeds each:
+val_plain 86.0%, val_pale 81.6%, against v10's 86.1% and 78.7%), where v11 (the diverse houses alone) lost 5 points
+on val_plain."""
 
 RECIPES: dict[str, Recipe] = {
     "v6": V6,
