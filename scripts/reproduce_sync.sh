@@ -75,11 +75,11 @@ print(' '.join(r.name for r in get_recipe(json.load(open(sys.argv[1]))['recipe']
     ls "$run/stages" ;;
   commit)
     RUN=$run bash "$self" save > /dev/null
-    n=$(cat "$store"/records/*.jsonl 2>/dev/null | wc -l)
+    n=$(find "$store/records" -name '*.jsonl' -exec cat {} + | wc -l)  # 0 before the first evaluation
     # best.pt (CHECKPOINTS=1) is committed by hand when wanted: not every few minutes into the history
     git add -- "$store" ":(exclude)$store/runs/*/best.pt"
     if git diff --cached --quiet -- "$store"; then echo "nothing new"; exit 0; fi
-    git commit -q -m "reproduce run: $(ls "$store"/stages | wc -l) stages done, $n evaluation runs recorded (sync.sh)" \
+    git commit -q -m "reproduce run: $(ls "$store"/stages | wc -l) stages done, $n episodes recorded (evaluation and exploration; sync.sh)" \
       -- "$store" ":(exclude)$store/runs/*/best.pt"
     git log --oneline -1 ;;
   autosave)

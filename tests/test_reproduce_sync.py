@@ -83,18 +83,26 @@ def test_commit_keeps_everything_but_the_checkpoints_in_git_and_nothing_else_sta
            "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
     git = lambda *a: subprocess.run(["git", *a], cwd=repo, env=env, capture_output=True, text=True)  # noqa: E731
     git("init", "-q")
+    records = run / "records"
+    records.rename(tmp_path / "later")  # before the first evaluation: no records yet
+    res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert "4 stages done, 0 episodes recorded" in git("log", "-1", "--format=%s").stdout
+    (tmp_path / "later").rename(records)
     (repo / "other.txt").write_text("staged by someone else\n")
     git("add", "other.txt")
 
     res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
-    committed = set(git("show", "--name-only", "--format=", "HEAD").stdout.split())
+    committed = set(git("ls-tree", "-r", "--name-only", "HEAD").stdout.split())
     assert committed == {"results/run/recipe.json", "results/run/records/val252.jsonl",
                          "results/run/records/explore/val252.jsonl", "results/run/runs/nue/selection.json",
                          "results/run/runs/nue@s1/selection.json",
                          *(f"results/run/stages/{s}.json" for s in ("collect", "collect__train_diverse", "train__nue",
                                                                     "train__nue@s1"))}
-    assert "4 stages done, 1 evaluation runs recorded" in git("log", "-1", "--format=%s").stdout
+    assert set(git("show", "--name-only", "--format=", "HEAD").stdout.split()) == {
+        "results/run/records/val252.jsonl", "results/run/records/explore/val252.jsonl"}  # what the second one added
+    assert "4 stages done, 2 episodes recorded" in git("log", "-1", "--format=%s").stdout
     assert (repo / "results" / "run" / "runs" / "nue" / "best.pt").is_file()  # saved, not committed
     assert git("diff", "--cached", "--name-only").stdout.split() == ["other.txt"]  # still staged, not committed
     res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
