@@ -90,8 +90,9 @@ def outcome(r: dict) -> tuple:
 
 
 class Copies:
-    """Every record committed under ``results/`` outside the files being published, by identity -> outcome; read
-    only when a row needs it."""
+    """Every record committed under ``results/`` outside the files being published, by identity -> its outcomes
+    (one method name may hold several runs' records: an experiment's and a later run's); read only when a row needs
+    it."""
 
     def __init__(self, root: Path, exclude: set[Path]):
         self.root, self.exclude, self._index = root, {p.resolve() for p in exclude}, None
@@ -106,8 +107,8 @@ class Copies:
                     if '"method"' in line:
                         x = json.loads(line)
                         if {"method", "scene", "episode_id", "success"} <= set(x):
-                            self._index[identity(x)] = outcome(x)
-        return self._index.get(identity(r)) == outcome(r)
+                            self._index.setdefault(identity(x), set()).add(outcome(x))
+        return outcome(r) in self._index.get(identity(r), ())
 
 
 def merge(path: Path, new: list[dict], prev_rows: set[str], previous: str, experts: set[str], copies: Copies) -> tuple[list[dict], str]:

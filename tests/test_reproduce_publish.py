@@ -62,6 +62,8 @@ def setup(tmp_path):
         (root / "checkpoints" / f"{m}.pt").write_bytes(f"v6 {m}".encode())
     vgm = _rows("vgm")
     _write(root / "results" / "memory_baselines" / "records_val252_vgm.jsonl", vgm)
+    # another run's vgm rows of the same episodes, e.g. the run's store read after the experiment's file
+    _write(root / "results" / "v12" / "run" / "records" / "val252.jsonl", _rows("vgm", success=False))
     old = _rows("nue") + _rows("nue+swap") + _rows("sling+nue") + _rows("fr_v5") + vgm + _rows("expert", success=False)
     _write(root / "results" / "records_val252.jsonl", old)
     _write(root / "results" / "records.jsonl", [r for r in old if r["episode_id"].endswith(("_000", "_001"))])
