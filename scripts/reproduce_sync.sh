@@ -4,7 +4,8 @@
 #                                           best.pt and selection summary of every finished model, records)
 #   bash scripts/reproduce_sync.sh commit   save, then commit the store but its best.pt files (git commit -- <store>,
 #                                           nothing else staged is committed): recipe, markers, records, selections,
-#                                           hashes
+#                                           hashes; COMMIT_CHECKPOINTS=1 (with CHECKPOINTS=1) commits the best.pt files
+#                                           too, each once, when its run has finished
 #   bash scripts/reproduce_sync.sh autosave [MINUTES]  commit every MINUTES (default 20), until killed: a session
 #                                           that ends without warning keeps what its evaluation had recorded
 #   bash scripts/reproduce_sync.sh restore  results/reproduce/run -> RUN; without the demonstrations
@@ -14,8 +15,8 @@
 #                                           every model is trained the marker stays and evaluation goes on
 # RUN is the run's folder (`nue reproduce --out`; default runs/reproduce in the repository; a relative RUN is taken
 # from the current folder). STORE is where it is kept (default results/reproduce/run in the repository holding this
-# script; a relative STORE is taken from the repository). CHECKPOINTS=0 keeps each best.pt's sha256 (best.sha256)
-# instead of the file: restore then drops the markers of the runs whose best.pt is missing, so they train again (a
+# script; a relative STORE is taken from the repository). Each finished run's best.pt sha256 is kept (best.sha256);
+# CHECKPOINTS=0 keeps only that, not the file: restore then drops the markers of the runs whose best.pt is missing, so they train again (a
 # run retrained on another CPU may round differently; its evaluation records are then refused, naming the method).
 # Then rerun the same `nue reproduce` command: finished stages are kept, the rest continues.
 set -euo pipefail
@@ -35,11 +36,8 @@ case "${1:-}" in
       [ -e "$marker" ] || continue
       model=$(basename "$marker" .json); model=${model#train__}
       mkdir -p "$store/runs/$model"
-      if [ "$checkpoints" = 1 ]; then
-        cp "$run/runs/$model/best.pt" "$store/runs/$model/"
-      else
-        (cd "$run/runs/$model" && sha256sum best.pt) > "$store/runs/$model/best.sha256"
-      fi
+      (cd "$run/runs/$model" && sha256sum best.pt) > "$store/runs/$model/best.sha256"
+      [ "$checkpoints" = 1 ] && cp "$run/runs/$model/best.pt" "$store/runs/$model/"
       for f in "$run/runs/$model"/selection*; do [ -e "$f" ] && cp "$f" "$store/runs/$model/"; done
     done
     [ -d "$run/records" ] && cp -r "$run/records/." "$store/records/"  # with records/explore/
@@ -53,6 +51,8 @@ case "${1:-}" in
   restore)
     mkdir -p "$run"
     cp -rn "$store"/. "$run"/
+    # the houses (data/scenes, never committed) are made again on a fresh machine; the stage keeps intact ones
+    [ -e "$run/stages/scenes.json" ] && rm "$run/stages/scenes.json" && echo "scenes: houses checked again"
     # a training run whose best.pt was not kept (CHECKPOINTS=0) trains again
     for marker in "$run"/stages/train__*.json; do
       [ -e "$marker" ] || continue
@@ -76,11 +76,14 @@ print(' '.join(r.name for r in get_recipe(json.load(open(sys.argv[1]))['recipe']
   commit)
     RUN=$run bash "$self" save > /dev/null
     n=$(find "$store/records" -name '*.jsonl' -exec cat {} + | wc -l)  # 0 before the first evaluation
-    # best.pt (CHECKPOINTS=1) is committed by hand when wanted: not every few minutes into the history
-    git add -- "$store" ":(exclude)$store/runs/*/best.pt"
+    # best.pt (CHECKPOINTS=1) is committed only with COMMIT_CHECKPOINTS=1: each file once, when its run has finished
+    # (a run spanning machines keeps its trained models); otherwise by hand when wanted
+    paths=("$store")
+    [ "${COMMIT_CHECKPOINTS:-0}" = 1 ] || paths+=(":(exclude)$store/runs/*/best.pt")
+    git add -- "${paths[@]}"
     if git diff --cached --quiet -- "$store"; then echo "nothing new"; exit 0; fi
     git commit -q -m "reproduce run: $(ls "$store"/stages | wc -l) stages done, $n episodes recorded (evaluation and exploration; sync.sh)" \
-      -- "$store" ":(exclude)$store/runs/*/best.pt"
+      -- "${paths[@]}"
     git log --oneline -1 ;;
   autosave)
     minutes=${2:-20}

@@ -97,7 +97,8 @@ def test_commit_keeps_everything_but_the_checkpoints_in_git_and_nothing_else_sta
     committed = set(git("ls-tree", "-r", "--name-only", "HEAD").stdout.split())
     assert committed == {"results/run/recipe.json", "results/run/records/val252.jsonl",
                          "results/run/records/explore/val252.jsonl", "results/run/runs/nue/selection.json",
-                         "results/run/runs/nue@s1/selection.json",
+                         "results/run/runs/nue@s1/selection.json", "results/run/runs/nue/best.sha256",
+                         "results/run/runs/nue@s1/best.sha256",
                          *(f"results/run/stages/{s}.json" for s in ("collect", "collect__train_diverse", "train__nue",
                                                                     "train__nue@s1"))}
     assert set(git("show", "--name-only", "--format=", "HEAD").stdout.split()) == {
@@ -105,5 +106,28 @@ def test_commit_keeps_everything_but_the_checkpoints_in_git_and_nothing_else_sta
     assert "4 stages done, 2 episodes recorded" in git("log", "-1", "--format=%s").stdout
     assert (repo / "results" / "run" / "runs" / "nue" / "best.pt").is_file()  # saved, not committed
     assert git("diff", "--cached", "--name-only").stdout.split() == ["other.txt"]  # still staged, not committed
+    res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
+    assert res.returncode == 0 and res.stdout.strip() == "nothing new"
+
+
+def test_commit_checkpoints_commits_each_finished_runs_best_pt_once(run, tmp_path):
+    """``COMMIT_CHECKPOINTS=1``: a multi-session run keeps its trained models in git (each file once: a later commit
+    with the same checkpoints adds nothing); the sha256 is kept beside each file."""
+    repo = tmp_path / "repo"
+    (repo / "scripts").mkdir(parents=True)
+    script = repo / "scripts" / "reproduce_sync.sh"
+    script.write_bytes(SCRIPT.read_bytes())
+    env = {**os.environ, "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
+           "GIT_COMMITTER_EMAIL": "t@t", "RUN": str(run), "STORE": "results/run", "CHECKPOINTS": "1",
+           "COMMIT_CHECKPOINTS": "1", "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    git = lambda *a: subprocess.run(["git", *a], cwd=repo, env=env, capture_output=True, text=True)  # noqa: E731
+    git("init", "-q")
+    res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    committed = set(git("ls-tree", "-r", "--name-only", "HEAD").stdout.split())
+    assert {"results/run/runs/nue/best.pt", "results/run/runs/nue@s1/best.pt",
+            "results/run/runs/nue/best.sha256"} <= committed
+    digest = hashlib.sha256((run / "runs" / "nue@s1" / "best.pt").read_bytes()).hexdigest()
+    assert git("show", "HEAD:results/run/runs/nue@s1/best.sha256").stdout.split() == [digest, "best.pt"]
     res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
     assert res.returncode == 0 and res.stdout.strip() == "nothing new"
