@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from nue.errors import DataError
 from nue.evaluate import diagnose as D
 from nue.evaluate import diagnose_maps as M
 from nue.sim.record import EpisodeRecord, Trajectory
@@ -320,3 +321,27 @@ def test_action_agreement_by_hand_and_on_the_command_line(tmp_path):
     assert res.returncode == 0, res.stderr
     assert "m vs m_b8: 87.5% of 8 steps (the first 3 of 3 episodes both ran)" in res.stdout
     assert_clean_error(nue_here("diagnose", "--records", path, "--agree", "m,nope"), "--agree", "'m,nope'")
+
+
+def test_trajectory_decode_round_trips_and_refuses_actions_that_are_not_digits():
+    t = Trajectory(np.array([0, 1, 2, 9]), np.array([0, 1, 0, 0], bool), np.zeros((5, 3)))
+    d = t.encode()
+    assert d["actions"] == "0129"
+    back = Trajectory.decode(d)
+    assert back.actions.tolist() == [0, 1, 2, 9] and back.collided.tolist() == [False, True, False, False]
+    for actions in ("01x9", "01/9", "01\u06639"):  # a letter, the character before '0', an Arabic-Indic three
+        with pytest.raises(ValueError):
+            Trajectory.decode({**d, "actions": actions})
+
+
+def test_read_records_reads_a_file_again_once_it_changed(tmp_path):
+    """Parsed files are kept while unchanged; an appended record or a rewrite is read."""
+    path = tmp_path / "r.jsonl"
+    path.write_text(json.dumps(rec(*EP1).to_dict()) + "\n")
+    assert len(D.read_records(path)) == 1
+    with path.open("a") as f:
+        f.write(json.dumps(rec(*EP2, i=1).to_dict()) + "\n")
+    assert [r.episode_id for r in D.read_records(path)] == [rec(*EP1).episode_id, rec(*EP2, i=1).episode_id]
+    path.write_text("{not json\n")
+    with pytest.raises(DataError, match="line 1: not JSON"):
+        D.read_records(path)

@@ -23,6 +23,7 @@ from the task preset (``paper``: 0 forward, 1 left, 2 right; ``habitat``: 0 STOP
 from __future__ import annotations
 
 import binascii
+import collections
 import json
 import math
 from dataclasses import MISSING, asdict, astuple, dataclass, field, fields, is_dataclass
@@ -231,41 +232,64 @@ def action_agreement(records: Sequence[EpisodeRecord], a: str, b: str, limit: in
                            float(np.median(firsts)) if firsts else None)
 
 
+_PARSED: "collections.OrderedDict[tuple[str, int, int], list[tuple[int, dict, EpisodeRecord]]]" = collections.OrderedDict()
+"""Checked records of the files read last, by (path, size, mtime): a report reads each file several times."""
+_PARSED_FILES = 16
+
+
+def _parsed_lines(p) -> list[tuple[int, dict, EpisodeRecord]]:
+    """(line number, dict, record) of every record line of file ``p``, each checked; cached while the file is
+    unchanged (same size and modification time)."""
+    try:
+        st = Path(p).stat()
+        key = (str(Path(p).resolve()), st.st_size, st.st_mtime_ns)
+        if key in _PARSED:
+            _PARSED.move_to_end(key)
+            return _PARSED[key]
+        lines = Path(p).read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = (exc.strerror if isinstance(exc, OSError) else None) or type(exc).__name__
+        raise DataError(p, f"cannot read records ({reason})") from None
+    parsed = []
+    for i, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            d = json.loads(line)
+            if not isinstance(d, dict):
+                raise TypeError(f"a JSON {type(d).__name__}, not an object")
+            missing = [f.name for f in fields(EpisodeRecord) if f.name not in d
+                       and f.default is MISSING and f.default_factory is MISSING]
+            if missing:
+                raise TypeError(f"missing {', '.join(missing)}")
+            r = EpisodeRecord.from_dict(d)
+            if not isinstance(r.extra, dict):
+                raise TypeError("extra is not an object")
+            r.trajectory()
+        except json.JSONDecodeError:
+            raise DataError(p, f"line {i}: not JSON") from None
+        except RecordFormatError as exc:
+            raise DataError(p, f"line {i}: {exc}") from None
+        except (TypeError, AttributeError) as exc:
+            raise DataError(p, f"line {i}: not an episode record ({exc})") from None
+        except (ValueError, KeyError, binascii.Error) as exc:
+            raise DataError(p, f"line {i}: bad trajectory ({exc})") from None
+        parsed.append((i, d, r))
+    _PARSED[key] = parsed
+    while len(_PARSED) > _PARSED_FILES:
+        _PARSED.popitem(last=False)
+    return parsed
+
+
 def read_records(*paths, drop_duplicates: bool = False, on_dropped: OnDropped | None = None) -> list[EpisodeRecord]:
     """Records from JSON-lines files, checked: a bad line or trajectory raises :class:`DataError` naming file and line,
     and so does a key recorded twice in one file (:mod:`nue.evaluate.record_keys`), unless ``drop_duplicates``: then
-    the first record of each key is kept and ``on_dropped(file, n)`` told how many were left out."""
+    the first record of each key is kept and ``on_dropped(file, n)`` told how many were left out. A file read again
+    unchanged is not parsed again."""
     out = []
     for p in paths:
         unique = UniqueKeys(p, drop_duplicates)
-        try:
-            lines = Path(p).read_text().splitlines()
-        except (OSError, UnicodeDecodeError) as exc:
-            reason = (exc.strerror if isinstance(exc, OSError) else None) or type(exc).__name__
-            raise DataError(p, f"cannot read records ({reason})") from None
-        for i, line in enumerate(lines, 1):
-            if not line.strip():
-                continue
-            try:
-                d = json.loads(line)
-                if not isinstance(d, dict):
-                    raise TypeError(f"a JSON {type(d).__name__}, not an object")
-                missing = [f.name for f in fields(EpisodeRecord) if f.name not in d
-                           and f.default is MISSING and f.default_factory is MISSING]
-                if missing:
-                    raise TypeError(f"missing {', '.join(missing)}")
-                r = EpisodeRecord.from_dict(d)
-                if not isinstance(r.extra, dict):
-                    raise TypeError("extra is not an object")
-                r.trajectory()
-            except json.JSONDecodeError:
-                raise DataError(p, f"line {i}: not JSON") from None
-            except RecordFormatError as exc:
-                raise DataError(p, f"line {i}: {exc}") from None
-            except (TypeError, AttributeError) as exc:
-                raise DataError(p, f"line {i}: not an episode record ({exc})") from None
-            except (ValueError, KeyError, binascii.Error) as exc:
-                raise DataError(p, f"line {i}: bad trajectory ({exc})") from None
+        for i, d, r in _parsed_lines(p):
             if unique.first(d, i):
                 out.append(r)
         unique.report(on_dropped)

@@ -57,7 +57,9 @@ class Trajectory:
         """Inverse of :meth:`encode` (poses to the stored precision)."""
         if d.get("format") != TRAJECTORY_FORMAT:
             raise ValueError(f"trajectory: unknown format {d.get('format')!r}")
-        actions = np.array([int(c) for c in d["actions"]], dtype=np.int64)
+        actions = np.frombuffer(d["actions"].encode("ascii"), dtype=np.uint8).astype(np.int64) - ord("0")
+        if actions.size and (actions.min() < 0 or actions.max() > 9):
+            raise ValueError("trajectory: actions must be digits 0..9")
         collided = np.zeros(len(actions), dtype=bool)
         collided[np.asarray(d["collided"], dtype=np.int64)] = True
         q = np.frombuffer(base64.b64decode(d["poses"]), dtype="<i2").reshape(-1, 3)
