@@ -57,7 +57,11 @@ case "${1:-}" in
     for marker in "$run"/stages/train__*.json; do
       [ -e "$marker" ] || continue
       name=$(basename "$marker" .json); name=${name#train__}
-      if [ ! -f "$run/runs/$name/best.pt" ]; then rm -f "$marker"; echo "train/$name: no best.pt kept, trains again"; fi
+      if [ ! -f "$run/runs/$name/best.pt" ]; then
+        # and the old run's selection goes: its records name snapshots the new run will have made differently
+        rm -f "$marker" "$run/runs/$name"/selection* "$run/runs/$name/best.sha256"
+        echo "train/$name: no best.pt kept, trains again"
+      fi
     done
     # the demonstrations are needed again only while a training run is still to train (the recipe's runs: every seed)
     runs=$(python -c "import json, sys; from nue.recipes import get_recipe

@@ -58,6 +58,7 @@ def test_save_without_checkpoints_keeps_hashes_and_restore_retrains_and_recollec
     assert res.returncode == 0, res.stderr
     assert sorted(p.name for p in (fresh / "stages").iterdir()) == []  # both runs retrain, so both collections again
     assert "train/nue@s1: no best.pt kept, trains again" in res.stdout
+    assert not list((fresh / "runs" / "nue").iterdir())  # no selection records of the old snapshots to resume from
     assert "collect/train_diverse: " in res.stdout and (fresh / "records" / "val252.jsonl").is_file()
 
 
