@@ -31,6 +31,14 @@ case "${1:-}" in
   save)
     mkdir -p "$store/stages" "$store/records"
     cp "$run/recipe.json" "$store/"
+    # the store mirrors the run: a stage the run has not finished (again) is not kept as finished
+    for marker in "$store"/stages/*.json; do
+      [ -e "$marker" ] || continue
+      stage=$(basename "$marker")
+      [ -e "$run/stages/$stage" ] && continue
+      rm "$marker"
+      case "$stage" in train__*) name=${stage#train__}; rm -rf "$store/runs/${name%.json}" ;; esac
+    done
     cp "$run"/stages/*.json "$store/stages/"
     for marker in "$run"/stages/train__*.json; do
       [ -e "$marker" ] || continue

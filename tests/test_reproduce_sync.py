@@ -52,6 +52,13 @@ def test_save_without_checkpoints_keeps_hashes_and_restore_retrains_and_recollec
     assert (store / "runs" / "nue" / "best.sha256").read_text().split() == [digest, "best.pt"]
     assert (store / "runs" / "nue@s1" / "selection.json").is_file()
     assert (store / "records" / "explore" / "val252.jsonl").read_text() == '{"b": 2}\n'
+    # the store mirrors the run: a run restored elsewhere that trains again is no longer finished in the store
+    (run / "stages" / "train__nue@s1.json").unlink()
+    assert _sync("save", run, store, checkpoints=0).returncode == 0
+    assert not (store / "stages" / "train__nue@s1.json").exists() and not (store / "runs" / "nue@s1").exists()
+    assert (store / "stages" / "train__nue.json").is_file() and (store / "runs" / "nue" / "best.sha256").is_file()
+    (run / "stages" / "train__nue@s1.json").write_text("{}")
+    assert _sync("save", run, store, checkpoints=0).returncode == 0
 
     fresh = tmp_path / "fresh"
     res = _sync("restore", fresh, store, checkpoints=0)
