@@ -81,26 +81,39 @@ def test_save_with_checkpoints_and_restore_keeps_trained_runs_and_present_demons
     assert sorted(p.stem for p in (fresh / "stages").iterdir()) == ["collect", "train__nue", "train__nue@s1"]
 
 
-def test_commit_keeps_everything_but_the_checkpoints_in_git_and_nothing_else_staged(run, tmp_path):
+def _scratch_repo(tmp_path: Path, run: Path, **env_extra: str):
+    """A git repository holding a copy of the script, RUN = ``run``, STORE=results/run, CHECKPOINTS=1: (repo folder,
+    ``commit()`` running the script's ``commit`` there, ``git(*args)``)."""
     repo = tmp_path / "repo"
     (repo / "scripts").mkdir(parents=True)
     script = repo / "scripts" / "reproduce_sync.sh"
     script.write_bytes(SCRIPT.read_bytes())
     env = {**os.environ, "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
-           "GIT_COMMITTER_EMAIL": "t@t", "RUN": str(run), "STORE": "results/run", "CHECKPOINTS": "1",
+           "GIT_COMMITTER_EMAIL": "t@t", "RUN": str(run), "STORE": "results/run", "CHECKPOINTS": "1", **env_extra,
            "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
-    git = lambda *a: subprocess.run(["git", *a], cwd=repo, env=env, capture_output=True, text=True)  # noqa: E731
+
+    def git(*args):
+        return subprocess.run(["git", *args], cwd=repo, env=env, capture_output=True, text=True)
+
+    def commit():
+        return subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
+
     git("init", "-q")
+    return repo, commit, git
+
+
+def test_commit_keeps_everything_but_the_checkpoints_in_git_and_nothing_else_staged(run, tmp_path):
+    repo, commit, git = _scratch_repo(tmp_path, run)
     records = run / "records"
     records.rename(tmp_path / "later")  # before the first evaluation: no records yet
-    res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
+    res = commit()
     assert res.returncode == 0, res.stderr
     assert "4 stages done, 0 episodes recorded" in git("log", "-1", "--format=%s").stdout
     (tmp_path / "later").rename(records)
     (repo / "other.txt").write_text("staged by someone else\n")
     git("add", "other.txt")
 
-    res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
+    res = commit()
     assert res.returncode == 0, res.stderr
     committed = set(git("ls-tree", "-r", "--name-only", "HEAD").stdout.split())
     assert committed == {"results/run/recipe.json", "results/run/records/val252.jsonl",
@@ -114,28 +127,20 @@ def test_commit_keeps_everything_but_the_checkpoints_in_git_and_nothing_else_sta
     assert "4 stages done, 2 episodes recorded" in git("log", "-1", "--format=%s").stdout
     assert (repo / "results" / "run" / "runs" / "nue" / "best.pt").is_file()  # saved, not committed
     assert git("diff", "--cached", "--name-only").stdout.split() == ["other.txt"]  # still staged, not committed
-    res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
+    res = commit()
     assert res.returncode == 0 and res.stdout.strip() == "nothing new"
 
 
 def test_commit_checkpoints_commits_each_finished_runs_best_pt_once(run, tmp_path):
     """``COMMIT_CHECKPOINTS=1``: a multi-session run keeps its trained models in git (each file once: a later commit
     with the same checkpoints adds nothing); the sha256 is kept beside each file."""
-    repo = tmp_path / "repo"
-    (repo / "scripts").mkdir(parents=True)
-    script = repo / "scripts" / "reproduce_sync.sh"
-    script.write_bytes(SCRIPT.read_bytes())
-    env = {**os.environ, "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
-           "GIT_COMMITTER_EMAIL": "t@t", "RUN": str(run), "STORE": "results/run", "CHECKPOINTS": "1",
-           "COMMIT_CHECKPOINTS": "1", "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
-    git = lambda *a: subprocess.run(["git", *a], cwd=repo, env=env, capture_output=True, text=True)  # noqa: E731
-    git("init", "-q")
-    res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
+    repo, commit, git = _scratch_repo(tmp_path, run, COMMIT_CHECKPOINTS="1")
+    res = commit()
     assert res.returncode == 0, res.stderr
     committed = set(git("ls-tree", "-r", "--name-only", "HEAD").stdout.split())
     assert {"results/run/runs/nue/best.pt", "results/run/runs/nue@s1/best.pt",
             "results/run/runs/nue/best.sha256"} <= committed
     digest = hashlib.sha256((run / "runs" / "nue@s1" / "best.pt").read_bytes()).hexdigest()
     assert git("show", "HEAD:results/run/runs/nue@s1/best.sha256").stdout.split() == [digest, "best.pt"]
-    res = subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
+    res = commit()
     assert res.returncode == 0 and res.stdout.strip() == "nothing new"
