@@ -16,8 +16,9 @@
 # RUN is the run's folder (`nue reproduce --out`; default runs/reproduce in the repository; a relative RUN is taken
 # from the current folder). STORE is where it is kept (default results/reproduce/run in the repository holding this
 # script; a relative STORE is taken from the repository). Each finished run's best.pt sha256 is kept (best.sha256);
-# CHECKPOINTS=0 keeps only that, not the file: restore then drops the markers of the runs whose best.pt is missing, so they train again (a
-# run retrained on another CPU may round differently; its evaluation records are then refused, naming the method).
+# CHECKPOINTS=0 keeps only that, not the file: restore then drops the markers of the runs whose best.pt is missing,
+# so they train again (a run retrained on another CPU may round differently; its evaluation records are then refused,
+# naming the method).
 # Then rerun the same `nue reproduce` command: finished stages are kept, the rest continues.
 set -euo pipefail
 self=$(realpath "$0")
