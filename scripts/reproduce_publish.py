@@ -17,7 +17,10 @@
    replaced by the run's where it has them (the script counts those whose outcome differs: simulator and experts
    are deterministic, so none should), else kept; any other row (a memory baseline's or SLING's experiment appended to the table) must be a copy
    of a record committed elsewhere under ``results/`` and is removed, else the script stops naming it. Every kept
-   row's ``extra.key`` becomes ``<method>/<scene>/<episode_id>`` (``nue view --key`` finds a record by it).
+   row's ``extra.key`` becomes ``<method>/<scene>/<episode_id>`` (``nue view --key`` finds a record by it). The
+   hand-off file beside a records file (``records_<set>.handoff.jsonl``: the hand-off of records made before the
+   evaluation measured it) follows: a kept row's line moves to its new key, the lines of replaced or removed rows
+   go (the run's records carry their own hand-off), so no hand-off is recomputed.
 3. **Exploration.** ``results/explore_<set>.jsonl`` likewise from ``RUN/records/explore/<set>.jsonl`` (the references
    ``expert-explore`` and ``random`` are replaced like the experts).
 
@@ -111,12 +114,17 @@ class Copies:
         return outcome(r) in self._index.get(identity(r), ())
 
 
-def merge(path: Path, new: list[dict], prev_rows: set[str], previous: str, experts: set[str], copies: Copies) -> tuple[list[dict], str]:
-    """The rows of ``path`` (if it exists) after publishing ``new`` into it, and a line saying what changed."""
+def merge(path: Path, new: list[dict], prev_rows: set[str], previous: str, experts: set[str],
+          copies: Copies) -> tuple[list[dict], dict[str, str], str]:
+    """The rows of ``path`` (if it exists) after publishing ``new`` into it, the record key of each kept row before
+    -> after, and a line saying what changed."""
+    from nue.evaluate.record_keys import record_key
+
     old = read_jsonl(path) if path.exists() else []
     ran = {identity(r): r for r in new}
     old_methods = {r["method"] for r in old}
     kept, differ, removed = [], 0, 0
+    keys: dict[str, str] = {}
     for r in old:
         method = r["method"]
         if method in experts:
@@ -135,10 +143,28 @@ def merge(path: Path, new: list[dict], prev_rows: set[str], previous: str, exper
         if method != r["method"] and method in old_methods:
             raise Refused(path, f"already has rows named {method!r} (published before?)")
         key = f"{method}/{r['scene']}/{r['episode_id']}"
+        keys[record_key(r)] = key
         kept.append({**r, "method": method, "extra": {**r.get("extra", {}), "key": key}})
     rows = kept + new
-    return rows, (f"{path}: {len(old)} -> {len(rows)} records ({len(new)} from the run; {removed} removed, copies "
-                  f"elsewhere; expert records whose outcome differs from the earlier one: {differ})")
+    return rows, keys, (f"{path}: {len(old)} -> {len(rows)} records ({len(new)} from the run; {removed} removed, "
+                        f"copies elsewhere; expert records whose outcome differs from the earlier one: {differ})")
+
+
+def moved_handoff(path: Path, keys: dict[str, str]) -> tuple[Path, list[dict], str] | None:
+    """The hand-off file beside the records file ``path`` after publishing (each kept row's line under its new key,
+    the other lines dropped) and a line saying what changed; None when there is no such file."""
+    from nue.evaluate.handoff_job import handoff_path
+
+    file = handoff_path(path)
+    if not file.is_file():
+        return None
+    lines = read_jsonl(file)
+    out = []
+    for line in lines:
+        key = keys.get(line["key"])
+        if key is not None:
+            out.append({**line, "key": key, "method": key.rsplit("/", 2)[0]})
+    return file, out, f"{file}: {len(lines)} -> {len(out)} lines (kept rows' lines under their new keys)"
 
 
 def _earlier(method: str) -> bool:
@@ -148,7 +174,7 @@ def _earlier(method: str) -> bool:
 
 
 def plan_records(root: Path, run: Path, recipe, previous_recipe) -> list[tuple[Path, list[dict], str]]:
-    """(file, its rows after publishing, what changed) for every records and exploration file."""
+    """(file, its rows after publishing, what changed) for every records, hand-off and exploration file."""
     from nue.evaluate.runner import EXPERT_METHODS
 
     prev_rows = {t.name for t in previous_recipe.training_runs() if t.seed_index == 0}
@@ -172,8 +198,11 @@ def plan_records(root: Path, run: Path, recipe, previous_recipe) -> list[tuple[P
     copies = Copies(root, {t[0] for t in targets})
     out = []
     for path, new in targets:
-        rows, line = merge(path, new, prev_rows, previous_recipe.name, experts, copies)
+        rows, keys, line = merge(path, new, prev_rows, previous_recipe.name, experts, copies)
         out.append((path, rows, line))
+        handoff = moved_handoff(path, keys)
+        if handoff is not None:
+            out.append(handoff)
     return out
 
 
@@ -300,8 +329,7 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(2)
     sets = " ".join(f"--set {s}=results/records_{s}.jsonl" for s in recipe.eval_sets if s != "val252")
     explore = " ".join(f"--explore {s}=results/explore_{s}.jsonl" for s in recipe.explore_sets)
-    print("next: nue diagnose --records results/records_<set>.jsonl --handoff --episodes-dir episodes/<set> for each set; "
-          "update RESULTS.meta.json; then\n  nue report results/records_val252.jsonl --name val252 "
+    print("next: update RESULTS.meta.json; then\n  nue report results/records_val252.jsonl --name val252 "
           f"--set val=results/records.jsonl {sets} {explore} --out results/report --results-md RESULTS.md")
 
 

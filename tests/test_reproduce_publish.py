@@ -30,7 +30,7 @@ QUICK_ROWS = ["nue", "abl_none", "abl_fu", "abl_at_cbam", "abl_fu_cbam", "abl_fu
 def _rows(method: str, scene: str = "val_00", n: int = 18, success: bool | None = None) -> list[dict]:
     rows = []
     for r in TEMPLATE[:n]:
-        r = {**r, "method": method, "scene": scene, "extra": {**r["extra"], "key": f"old/{r['episode_id']}"}}
+        r = {**r, "method": method, "scene": scene, "extra": {**r["extra"], "key": f"old/{method}/{r['episode_id']}"}}
         if success is not None:
             r["success"] = success
         rows.append(r)
@@ -169,3 +169,37 @@ def test_not_shipped_leaves_a_row_out_and_the_table_lists_the_rest(setup, capsys
     sr = 100 * sum(r["success"] for r in TEMPLATE) / len(TEMPLATE)
     assert f"| {sr:.1f}% | {sr:.1f}% (2 seeds) |" in nue and "`nue` (NUE (full))" in nue
     assert _snapshot(root)["checkpoints/nue.pt"] == b"v6 nue"  # --table changes nothing
+
+
+def test_hand_off_lines_follow_the_renamed_rows(setup, capsys):
+    """The previous recipe's records carry no hand-off of their own (made before the evaluation measured it): their
+    lines in ``records_<set>.handoff.jsonl`` move to the renamed keys and still attach; replaced or removed rows' go."""
+    from nue.evaluate.handoff import HANDOFF_KEY, record_handoff
+    from nue.evaluate.handoff_job import handoff_path, load_records_with_handoff, record_key, trajectory_digest
+    from nue.sim.record import EpisodeRecord
+
+    root, run = setup
+    records = root / "results" / "records_val252.jsonl"
+    old = [json.loads(line) for line in records.read_text().splitlines()]
+    for r in old:
+        del r["extra"][HANDOFF_KEY]
+    _write(records, old)
+    lines, before = [], {}
+    for i, r in enumerate(old):
+        rec = EpisodeRecord.from_dict(r)
+        h = {**TEMPLATE[0]["extra"][HANDOFF_KEY], "closest_step": i}
+        lines.append({"key": record_key(rec), "method": r["method"], "trajectory": trajectory_digest(rec), HANDOFF_KEY: h})
+        before[(r["method"], r["episode_id"])] = i
+    _write(handoff_path(records), lines)
+
+    assert _publish(root, run) == 0, capsys.readouterr().err
+    moved = [json.loads(line) for line in handoff_path(records).read_text().splitlines()]
+    assert {m["method"] for m in moved} == {"nue_v6", "nue_v6+swap", "sling+nue_v6", "fr_v5"}  # expert, vgm: gone
+    assert len(moved) == 4 * 18 and all(m["key"].startswith(m["method"] + "/val_00/") for m in moved)
+    renamed = {"nue_v6": "nue", "nue_v6+swap": "nue+swap", "sling+nue_v6": "sling+nue", "fr_v5": "fr_v5"}
+    attached = [r for r in load_records_with_handoff(records) if r.method in renamed]
+    assert len(attached) == 4 * 18
+    for r in attached:  # each renamed row reads its own old line
+        assert record_handoff(r).closest_step == before[(renamed[r.method], r.episode_id)]
+    assert all(record_handoff(r) is not None for r in load_records_with_handoff(records) if r.method == "nue")  # the run's
+    assert f"{handoff_path(records)}: {len(old)} -> {4 * 18} lines" in capsys.readouterr().out
