@@ -252,6 +252,9 @@ def report_cmd(
     for set_name, set_recs in sets.items():
         write_report(set_recs, out / set_name, task=task, compare_to=reference)
         write_coverage_figure(set_recs, out / set_name)
+    for set_name, set_recs in explored.items():
+        paths.update(write_coverage_figure(set_recs, out, f"explore_{set_name}.png",
+                                           f"Exploration benchmark from {set_name}'s starts"))
     typer.echo((out / "table.md").read_text() if (out / "table.md").is_file() else "")
     if generalisation:
         from nue.evaluate.results_md import generalisation_section

@@ -19,7 +19,8 @@ Stages, in order (each one calls the library function of its command, and each i
                     ``OUT/records/explore/<set>.jsonl`` (:mod:`nue.reproduce_eval` runs the ``eval`` and ``explore``
                     stages)
 ``report``          ``nue report`` per set (``OUT/report/<set>/``: tables and coverage.png; a set that extends
-                    another also reports the smaller one from the same records) and ``OUT/RESULTS.md`` (with each
+                    another also reports the smaller one from the same records), the exploration benchmark's
+                    figure per set of starts (``OUT/report/explore_<set>.png``) and ``OUT/RESULTS.md`` (with each
                     stage's wall-clock in the call that finished it, and an evaluation's summed episode time)
 ==================  ==========================================================================================
 
@@ -293,6 +294,10 @@ def write_results(recipe: Recipe, folders: RunFolders) -> Path:
     for name, recs in tables.items():
         write_report(recs, folders.out / "report" / name, task=recipe.task)
         write_coverage_figure(recs, folders.out / "report" / name)
+    explored = explore_records(recipe, folders)
+    for name, recs in explored.items():
+        write_coverage_figure(recs, folders.out / "report", f"explore_{name}.png",
+                              f"Exploration benchmark from {name}'s starts")
     main = recipe.eval_sets[0]
     walls = {s: stage_done(folders, s) for s in plan_stages(recipe) if s != "report"}
     collected = [m.summary for s, m in walls.items() if s.partition("/")[0] == "collect" and m is not None]
@@ -308,7 +313,7 @@ def write_results(recipe: Recipe, folders: RunFolders) -> Path:
                                       for s, m in walls.items() if m),
     }
     text = render_results_md(tables[main], meta, recipe.task, sets={k: v for k, v in tables.items() if k != main},
-                             main_name=main, explore=explore_records(recipe, folders))
+                             main_name=main, explore=explored)
     path = folders.out / "RESULTS.md"
     path.write_text(text)
     return path

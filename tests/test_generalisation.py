@@ -79,13 +79,17 @@ def test_report_cli_writes_the_table(tmp_path):
     for name, recs in sets().items():
         files[name] = tmp_path / f"{name}.jsonl"
         files[name].write_text("".join(json.dumps(r.to_dict()) + "\n" for r in recs))
+    explore = tmp_path / "explore.jsonl"  # exploration-benchmark runs: their own figure
+    explore.write_text("".join(json.dumps({**r.to_dict(), "extra": {"coverage": [1.0, 2.0, 2.5]}}) + "\n"
+                               for r in sets()["val252"]))
     out = tmp_path / "report"
     try:
         main(["report", str(files["val252"]), "--name", "val252", "--set", f"val_pale={files['val_pale']}",
-              "--out", str(out), "--generalisation", "val252"])
+              "--out", str(out), "--generalisation", "val252", "--explore", f"val252={explore}"])
     except SystemExit as exc:
         assert exc.code in (0, None)
     assert "| NUE (full) | 100.0 / 0.750 | 25.0 / 0.250 | +75.0 [" in (out / "generalisation.md").read_text()
+    assert (out / "explore_val252.png").read_bytes()[:4] == b"\x89PNG"
 
 
 def _with_outcome(r, outcome):

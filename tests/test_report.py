@@ -177,6 +177,35 @@ def test_seen_floor_cells_flat_floor(box_nav):
     assert seen_left[tuple(box_nav.cell_of((0.0, 2.0)))] and not seen_left[tuple(box_nav.cell_of((2.0, 0.0)))]
 
 
+def test_coverage_figure_lines_pool_seeds_and_leave_out_earlier_recipes(tmp_path):
+    """One line per current row in Table I order, seeds pooled with their min-max band (hand-computed), an ended
+    episode holding its last area, earlier recipes' rows left out, a style per kind of row."""
+    from nue.viz.coverage import coverage_lines, plot_coverage
+
+    recs = [rec(0, "easy", True, method="nue", coverage=[1.0, 2.0, 3.0]),
+            rec(1, "easy", True, method="nue", coverage=[3.0, 4.0]),  # ended at step 2: holds 4.0
+            rec(0, "easy", True, method="nue@s1", coverage=[5.0, 6.0, 7.0]),
+            rec(1, "easy", True, method="nue@s1", coverage=[5.0, 6.0, 7.0]),
+            rec(0, "easy", True, method="nue_v6", coverage=[9.0, 9.0, 9.0]),
+            rec(0, "easy", True, method="expert", coverage=[1.0, 1.0, 1.0]),
+            rec(0, "easy", True, method="nue+swap", coverage=[2.0, 2.0, 2.0]),
+            rec(0, "easy", True, method="fr", coverage=[0.5, 1.5, 2.5]),
+            rec(1, "easy", True, method="fr")]  # no coverage: not in the mean
+    lines = coverage_lines(recs)
+    assert [(ln.key, ln.kind, ln.seeds) for ln in lines] == [
+        ("fr", "baseline", 1), ("nue", "nue", 2), ("expert", "reference", 1), ("nue+swap", "control", 1)]
+    nue = lines[1]
+    assert nue.label == "NUE (full) (2 seeds)"
+    # seed 0: mean of [1, 2, 3] and [3, 4, 4] = [2, 3, 3.5]; seed 1: [5, 6, 7]; pooled over the 4 episodes
+    assert nue.mean.tolist() == [3.5, 4.5, 5.25]
+    assert nue.band[0].tolist() == [2.0, 3.0, 3.5] and nue.band[1].tolist() == [5.0, 6.0, 7.0]
+    assert lines[0].band is None and lines[0].mean.tolist() == [0.5, 1.5, 2.5]
+    path = plot_coverage(lines, tmp_path / "c.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert coverage_lines([r for r in recs if r.method == "nue_v6"]) == []
+    assert plot_coverage([], tmp_path / "empty.png").is_file()
+
+
 def test_write_report_and_results_md_regenerate(tmp_path):
     recs = hand_records() + [rec(i, d, i % 2 == 0, method=m, coverage=[0.5 * (k + 1) for k in range(10 + i)])
                              for m in ("fr", "abl_fu") for i, d in enumerate(("easy", "easy", "medium", "hard"))]

@@ -108,6 +108,7 @@ def test_quick_run_prints_its_estimate_and_reaches_results(run):
     explored = load_records(out / "records" / "explore" / "val252.jsonl")
     assert {r.method for r in explored} == {"nue", "nue@s1", "expert-explore", "random"} and len(explored) == 24
     assert {r.scene for r in explored} == {"val_00", "val_01"} and all(len(r.extra["coverage"]) == 5 for r in explored)
+    assert (out / "report" / "explore_val252.png").read_bytes()[:4] == b"\x89PNG"  # its figure
     assert "## Exploration benchmark from `val252`'s starts" in results and "explore/val252 " in results
     # two collections (quick's train_00 and train_diverse_00, 3 episodes each), and every model trained on both
     assert "| demonstrations | 6 episodes, " in results

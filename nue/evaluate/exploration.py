@@ -161,10 +161,11 @@ def _common(seeds: Mapping[int, Mapping[str, np.ndarray]]) -> set[str]:
 
 def exploration_summary(records: Sequence[EpisodeRecord], reference: str = "abl_at_cbam",
                         steps: Sequence[int] = REPORT_STEPS) -> list[ExplorationRow]:
-    """Per method key (sorted; a method's training seeds ``<method>@s<k>`` pooled in one row), the
-    :class:`ExplorationRow` at ``steps`` within the runs' length, and at that length."""
+    """Per method key (in table order, :func:`~nue.evaluate.table.order_methods`; a method's training seeds
+    ``<method>@s<k>`` pooled in one row), the :class:`ExplorationRow` at ``steps`` within the runs' length, and at
+    that length."""
     from nue.evaluate.stats import seed_episode_bootstrap, seed_episode_ratio
-    from nue.evaluate.table import canonical_method
+    from nue.evaluate.table import canonical_method, order_methods
 
     length = max((len(r.extra.get(COVERAGE_KEY) or []) for r in records), default=0)
     steps = sorted({s for s in (*steps, length) if 0 < s <= length})
@@ -172,7 +173,7 @@ def exploration_summary(records: Sequence[EpisodeRecord], reference: str = "abl_
     ref = curves.get(canonical_method(reference))
     cols = [s - 1 for s in steps]
     rows = []
-    for m in sorted(curves):
+    for m in order_methods(curves):
         keys = sorted(_common(curves[m]))
         c = _stack(curves[m], keys)  # (S, n, 2, steps)
         area_runs = c[:, :, 0, cols]

@@ -107,9 +107,12 @@ def method_label(key: str) -> str:
 
 
 def order_methods(keys) -> list[str]:
-    """Known methods in Table I order, then the others alphabetically."""
+    """Known methods in Table I order, then the current recipe's others (experts, controls) alphabetically, then
+    earlier recipes' rows (:func:`is_earlier_recipe`) alphabetically."""
     keys = set(keys)
-    return [m.key for m in METHODS if m.key in keys] + sorted(keys - set(_BY_KEY))
+    others = keys - set(_BY_KEY)
+    return ([m.key for m in METHODS if m.key in keys] + sorted(k for k in others if not is_earlier_recipe(k))
+            + sorted(k for k in others if is_earlier_recipe(k)))
 
 
 @dataclass(frozen=True)
