@@ -158,16 +158,24 @@ def pair_differences(sets: Mapping[str, Sequence[EpisodeRecord]], pairs: Sequenc
     return out
 
 
+def pairs_holm(diffs: Mapping[tuple[str, str], Mapping[str, PairedDiff]]) -> dict[tuple[tuple[str, str], str], bool]:
+    """Per cell ``(pair, set)`` of :func:`pair_differences`' result: whether "no difference" is rejected after a
+    Holm-Bonferroni correction across all the cells (5% family-wise)."""
+    cells = [(k, n) for k, row in diffs.items() for n in row]
+    return dict(zip(cells, holm([diffs[k][n].p for k, n in cells])))
+
+
 def pairs_markdown(sets: Mapping[str, Sequence[EpisodeRecord]], pairs: Sequence[tuple[str, str]],
-                   label=method_label) -> str:
-    """A table of :func:`pair_differences` in SR points, a row per pair and a column per set, each cell's verdict
-    after a Holm-Bonferroni correction across all the table's cells; '' when no pair ran together."""
-    diffs = pair_differences(sets, pairs)
+                   label=method_label, diffs: Mapping[tuple[str, str], Mapping[str, PairedDiff]] | None = None) -> str:
+    """A table of :func:`pair_differences` in SR points (``diffs`` when computed already), a row per pair and a
+    column per set, each cell's verdict after a Holm-Bonferroni correction across all the table's cells
+    (:func:`pairs_holm`); '' when no pair ran together."""
+    diffs = pair_differences(sets, pairs) if diffs is None else diffs
     if not diffs:
         return ""
     names = [n for n in sets if any(n in row for row in diffs.values())]
     cells = [(k, n) for k in diffs for n in names if n in diffs[k]]
-    holds = dict(zip(cells, holm([diffs[k][n].p for k, n in cells])))
+    holds = pairs_holm(diffs)
     lines = ["| difference | " + " | ".join(f"`{n}`: ΔSR points [95% CI] (episodes, seeds)" for n in names) + " |",
              "|" + "---|" * (len(names) + 1)]
     for (a, b), row in diffs.items():
