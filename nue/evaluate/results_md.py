@@ -1,5 +1,5 @@
 """The text of RESULTS.md, a pure function of episode records and metadata: the main episode set's Table I
-next to the paper, its ordering, the paper's ablation ordering step by step on every set, the earlier recipes' rows, paired differences, coverage and closed-loop
+next to the paper, its ordering, the paper's two claims (ablation ordering, NUE ahead of every baseline) step by step on every set, the earlier recipes' rows, paired differences, coverage and closed-loop
 diagnostics, then one section per further episode set (``results/records_<set>.jsonl``), the further sets
 pooled, then the discussion.
 The tables themselves are :mod:`nue.evaluate.report`'s. A method trained with several seeds (runs ``<model>@s<k>``) is
@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from nue.evaluate import coverage as cov
-from nue.evaluate.ablation_order import ablation_ordering_markdown
+from nue.evaluate.paper_claims import ablation_ordering_markdown, baselines_markdown
 from nue.evaluate.report import (
     NOTES, handoff_markdown, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
     format_markdown, method_label, paired_differences, paired_markdown, paper_table, seed_notes, unreachable_markdown,
@@ -174,9 +174,8 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     ordering = ordering_markdown(rows, paper)
     if ordering:
         parts.append(f"## Ordering by total SR\n\n{ordering}")
-    steps = ablation_ordering_markdown(_not_extended({main_name or MAIN_SET: records, **(sets or {})}))
-    if steps:
-        parts.append(steps)
+    independent = _not_extended({main_name or MAIN_SET: records, **(sets or {})})
+    parts += [text for text in (ablation_ordering_markdown(independent), baselines_markdown(independent)) if text]
     if earlier:
         parts.append("## Earlier recipes\n\nRows named `<method>_v<N>` are that method trained with an earlier recipe, "
                      "`<method>_v<N><letter>` an earlier run of a recipe (`checkpoints/README.md`), evaluated on the same episodes with the same seeds; they are left out "

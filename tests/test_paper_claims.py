@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from nue.evaluate.ablation_order import STEPS, ablation_ordering_markdown, step_verdicts
+from nue.evaluate.paper_claims import STEPS, ablation_ordering_markdown, step_verdicts
 from nue.sim.record import EpisodeRecord
 
 N = 60
@@ -36,3 +36,16 @@ def test_the_ordering_holds_where_every_step_is_resolved_after_holm():
            "ablation > all ablated for 1 of 2 (without CBAM)." in text
     assert "| NUE (full) − f_u=off AT=on CBAM=on | +50.0 [" in text and "across the 10 cells" in text
     assert ablation_ordering_markdown({"c": _runs("nue", 10) + _runs("fr", 5)}) == ""
+
+
+def test_nue_against_every_baseline_names_where_it_is_ahead_or_behind():
+    from nue.evaluate.paper_claims import baselines_markdown
+
+    a = _runs("nue", 50) + _runs("fr", 10) + _runs("nav_a3c", 48) + _runs("vgm", 60) + _runs("sling+fr", 10) \
+        + _runs("sling+nue", 60)  # SLING around NUE is no baseline
+    b = _runs("nue", 40) + _runs("fr", 0)
+    text = baselines_markdown({"a": a, "b": b})
+    assert "- `a`: NUE ahead of 2 of 4 baselines (FR, SLING + FR); behind VGM." in text
+    assert "- `b`: NUE ahead of 1 of 1 baselines (FR)." in text
+    assert "| NUE (full) − Nav-A3C | +3.3 [" in text and "SLING + NUE" not in text.split("\n\n", 2)[2]
+    assert baselines_markdown({"c": _runs("nue", 10)}) == ""
