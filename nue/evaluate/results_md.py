@@ -1,7 +1,7 @@
 """The text of RESULTS.md, a pure function of episode records and metadata: the main episode set's Table I
-next to the paper, its ordering, the paper's two claims (ablation ordering, NUE ahead of every baseline) step by step on every set, the earlier recipes' rows, paired differences, coverage and closed-loop
-diagnostics, then one section per further episode set (``results/records_<set>.jsonl``), the further sets
-pooled, then the discussion.
+next to the paper, its ordering, the paper's two claims (ablation ordering, NUE ahead of every baseline) step by step
+on every set, the earlier recipes' rows, paired differences, coverage and closed-loop diagnostics, then one section per
+further episode set (``results/records_<set>.jsonl``), the further sets pooled, then the discussion.
 The tables themselves are :mod:`nue.evaluate.report`'s. A method trained with several seeds (runs ``<model>@s<k>``) is
 one row of seed means in each Table I, and its paired differences pool seeds x episodes (:mod:`nue.evaluate.paired`);
 the notes on seeds appear only then, so a table of single runs reads as before."""
