@@ -57,7 +57,7 @@ from nue.reproduce_marker import (HousesSummary, ReportSummary, RunFolders, Stag
                                   stage_done)
 from nue.reproduce_train import TrainJob, collect_config, collect_configs, run_training, train_config, train_model  # noqa: F401
 from nue.scene.generator import SPLITS, ensure_house
-from nue.sim.episode_sets import get_episode_set
+from nue.sim.episode_sets import get_episode_set, held_out_sets
 from nue.train.collect import CollectSummary, collect
 from nue.viz.coverage import write_coverage_figure
 
@@ -312,8 +312,9 @@ def write_results(recipe: Recipe, folders: RunFolders) -> Path:
         "stage wall-clock": "; ".join(f"{s} {format_duration(m.seconds)}{_episode_time(folders, s)}"
                                       for s, m in walls.items() if m),
     }
+    held_out = [s for s in held_out_sets() if s in tables]
     text = render_results_md(tables[main], meta, recipe.task, sets={k: v for k, v in tables.items() if k != main},
-                             main_name=main, explore=explored)
+                             main_name=main, explore=explored, generalisation=main if held_out else "")
     path = folders.out / "RESULTS.md"
     path.write_text(text)
     return path

@@ -329,8 +329,11 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(2)
     sets = " ".join(f"--set {s}=results/records_{s}.jsonl" for s in recipe.eval_sets if s != "val252")
     explore = " ".join(f"--explore {s}=results/explore_{s}.jsonl" for s in recipe.explore_sets)
+    from nue.sim.episode_sets import held_out_sets
+
+    held = " --generalisation val252" if set(held_out_sets()) & set(recipe.eval_sets) else ""
     print("next: update RESULTS.meta.json; then\n  nue report results/records_val252.jsonl --name val252 "
-          f"--set val=results/records.jsonl {sets} {explore} --out results/report --results-md RESULTS.md")
+          f"--set val=results/records.jsonl {sets} {explore}{held} --out results/report --results-md RESULTS.md")
 
 
 if __name__ == "__main__":

@@ -173,6 +173,12 @@ def test_results_md_section_from_a_manifest_and_bad_manifests(tmp_path):
     section = text[text.index("## Generalisation to held-out styles"):]
     assert section.startswith("## Generalisation to held-out styles\n\nRows of recipe X.\n\nEach model on `val252`")
     assert "| FR (old houses) | 50.0 / " in section and "| NUE (full) − FR (old houses) | +50.0 [" in section
+    # with the main records' own section (their held-out sets given): that one first, the manifest's under its title
+    manifest.write_text(json.dumps({**json.loads(manifest.read_text()), "title": "Held out: recipe X"}))
+    both = render_results_md(s["val252"], meta, sets={"val_pale": s["val_pale"]}, main_name="val252",
+                             generalisation="val252", held_out=load_held_out(manifest))
+    own, held_section = both.index("## Generalisation to held-out styles\n"), both.index("## Held out: recipe X\n")
+    assert own < held_section and "Rows of recipe X." in both[held_section:] and "Rows of recipe X." not in both[:held_section]
     manifest.write_text(json.dumps({"reference": "val252", "sets": {"val252": ["a.jsonl", "gone.jsonl"]}}))
     with pytest.raises(DataError, match="gone.jsonl"):
         load_held_out(manifest)

@@ -98,6 +98,7 @@ def test_quick_run_prints_its_estimate_and_reaches_results(run):
     # the quick run's val252 episodes are val's, and of two equal sets the further one is pooled (named, not
     # "Table I's episodes"); in a full run val lies inside val252 and the section is "`val252` + `val_plain`"
     assert "## Pooled: `val` + `val_plain`\n" in results
+    assert "## Generalisation to held-out styles\n" in results  # val_plain is a held-out style family
     # each evaluation stage's runs counted from its records (its marker times only the call that finished it)
     for name, recs in records.items():
         assert f"eval/{name} " in results and f" ({len(recs)} run" in results.split(f"eval/{name} ")[1].split(";")[0]

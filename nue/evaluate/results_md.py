@@ -152,9 +152,9 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     it (default "Table I's episodes"); ``explore``: the exploration benchmark's records per set of starts (a section
     each, :func:`exploration_section_markdown`); ``generalisation``: a reference set's name (``val252``, the main
     records or one of ``sets``): a section comparing it with every held-out set of ``sets``
-    (:mod:`nue.evaluate.generalisation`; '' = none); ``held_out``: instead, a generalisation section from its own
-    record files (:class:`HeldOutInputs`, ``RESULTS.generalisation.json``). Same inputs give the same bytes (the
-    bootstrap is seeded).
+    (:mod:`nue.evaluate.generalisation`; '' = none); ``held_out``: a further generalisation section (after it) from
+    its own record files (:class:`HeldOutInputs`, ``RESULTS.generalisation.json``: models that are not Table
+    I's). Same inputs give the same bytes (the bootstrap is seeded).
     """
     current = [r for r in records if not is_earlier_recipe(r.method)]
     earlier = [r for r in records if is_earlier_recipe(r.method)]
@@ -207,13 +207,13 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
         pooled = pooled_section_markdown({main_name or MAIN_SET: records, **sets})
         if pooled:
             parts.append(pooled)
-    if held_out is not None:
-        section = generalisation_section(held_out.reference, held_out.sets, pairs=held_out.pairs,
-                                         labels=held_out.labels, about=held_out.about)
+    if generalisation:
+        section = generalisation_section(generalisation, {main_name or MAIN_SET: records, **(sets or {})})
         if section:
             parts.append(section)
-    elif generalisation:
-        section = generalisation_section(generalisation, {main_name or MAIN_SET: records, **(sets or {})})
+    if held_out is not None:
+        section = generalisation_section(held_out.reference, held_out.sets, pairs=held_out.pairs,
+                                         labels=held_out.labels, about=held_out.about, title=held_out.title)
         if section:
             parts.append(section)
     if meta.get("discussion"):
@@ -221,9 +221,13 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     return "\n".join(parts)
 
 
+GENERALISATION_TITLE = "Generalisation to held-out styles"
+"""The generalisation section's default title."""
+
+
 def generalisation_section(reference: str, sets: Mapping[str, Sequence[EpisodeRecord]], compare_to: str = "nue",
                            pairs: Sequence[tuple[str, str]] = (), labels: Mapping[str, str] | None = None,
-                           about: str = "") -> str:
+                           about: str = "", title: str = GENERALISATION_TITLE) -> str:
     """RESULTS.md's (and ``nue report``'s) generalisation section: ``reference`` against every held-out set
     (:func:`nue.sim.episode_sets.held_out_sets`) among ``sets``, paired differences to ``compare_to`` (or between
     ``pairs``, :func:`nue.evaluate.generalisation.generalisation_markdown`), ``about`` as its first paragraph; ''
@@ -238,7 +242,7 @@ def generalisation_section(reference: str, sets: Mapping[str, Sequence[EpisodeRe
     if not table:
         return ""
     names = ", ".join(f"`{f}`" for f in families)
-    return ("## Generalisation to held-out styles\n\n" + (f"{about}\n\n" if about else "")
+    return (f"## {title}\n\n" + (f"{about}\n\n" if about else "")
             + f"Each model on `{reference}` (houses of its training style) and on "
             f"the held-out style families {names}, whose houses lie outside every training style (docs/styles.md).\n\n"
             f"{table}")
@@ -285,12 +289,14 @@ class HeldOutInputs:
     """Row names by method key (e.g. which recipe and training houses)."""
     about: str
     """The section's first paragraph: what the rows are and where their records come from."""
+    title: str = GENERALISATION_TITLE
+    """The section's title."""
 
 
 HELD_OUT_FILE = "generalisation.json"
 """Suffix of the generalisation manifest beside a RESULTS.md: ``RESULTS.generalisation.json``. Its keys: ``reference``
 (a set name), ``sets`` (set name -> record files, relative to the manifest's folder), ``pairs`` (list of [a, b]),
-``labels`` (method key -> row name) and ``about`` (text)."""
+``labels`` (method key -> row name), ``about`` (text) and ``title`` (optional, the section's title)."""
 
 
 def load_held_out(path: Path) -> HeldOutInputs:
@@ -307,6 +313,7 @@ def load_held_out(path: Path) -> HeldOutInputs:
         raise DataError(path, f"cannot read the generalisation manifest ({exc})") from None
     try:
         reference, about = str(raw["reference"]), str(raw.get("about", ""))
+        title = str(raw.get("title", GENERALISATION_TITLE))
         files = {str(k): [Path(path).parent / str(f) for f in v] for k, v in dict(raw["sets"]).items()}
         pairs = tuple((str(a), str(b)) for a, b in raw.get("pairs", []))
         labels = {str(k): str(v) for k, v in dict(raw.get("labels", {})).items()}
@@ -317,7 +324,7 @@ def load_held_out(path: Path) -> HeldOutInputs:
     missing = [str(f) for fs in files.values() for f in fs if not f.is_file()]
     if missing:
         raise DataError(path, f"record file(s) not found: {', '.join(missing)}")
-    return HeldOutInputs(reference, {k: load_records(*v) for k, v in files.items()}, pairs, labels, about)
+    return HeldOutInputs(reference, {k: load_records(*v) for k, v in files.items()}, pairs, labels, about, title)
 
 
 def committed_held_out(root) -> HeldOutInputs | None:
