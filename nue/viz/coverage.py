@@ -94,7 +94,7 @@ def plot_coverage(lines: Sequence[CoverageLine], path, title: str = GOAL_TITLE) 
     in black), the legend beside the axes."""
     ncol = 1 if len(lines) <= 16 else 2
     fig, ax = plt.subplots(figsize=(6.4 + 2.4 * ncol, 4.4))
-    tab20 = plt.get_cmap("tab20").colors
+    tab20 = [plt.get_cmap("tab20")(i) for i in range(20)]
     # NUE (full) in black on top; the others in tab10's hues, then their light tones (tab20 pairs them)
     colours = cycle(tab20[0::2] + tab20[1::2])
     for line in lines:
