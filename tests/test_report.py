@@ -277,7 +277,10 @@ def test_results_md_gives_each_further_episode_set_its_own_section(tmp_path, cap
     section = text.split("## Table I on `val_plain`")[1].split("## Discussion")[0]
     assert "| FR | 0 / 2 | 0 / 1 | 0 / 1 | 0 / 4 |" in section and "| FR | 2 / 2 |" not in section
     assert "| FR | 4 | -50.0 [" in section and "| FR | 4 | +50.0 [" in text.split("## Table I on")[0]
-    assert RM.render_results_md(main, meta) == text.split("## Table I on `val_plain`")[0] + "## Discussion\n\nthe end\n"
+    # the main tables do not depend on the further sets; the claims across sets come after their sections
+    alone = RM.render_results_md(main, meta)
+    assert alone.split("## NUE against every baseline")[0] == text.split("## Table I on `val_plain`")[0]
+    assert alone.endswith("## Discussion\n\nthe end\n") and "`val_plain`: ΔSR" in text.split("## NUE against")[1]
     # the same through the CLI, with the meta beside RESULTS.md
     from tests.test_bad_input import run_cli
 
@@ -316,7 +319,7 @@ def test_two_further_sets_are_also_pooled_over_the_methods_that_ran_both():
     b += [rec(i, d, False, method="fr", scene="s1") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
     b += [rec(i, d, True, method="fr_v1", scene="s1") for i, d in enumerate(("easy", "easy", "medium", "hard"))]
     text = RM.render_results_md(hand_records(), {"command": "x"}, sets={"val252": a, "val_plain": b})
-    pooled = text.split("## Pooled: `val252` + `val_plain`")[1]
+    pooled = text.split("## Pooled: `val252` + `val_plain`")[1].split("\n## ")[0]  # up to the next section
     assert "| FR | 8 | +0.0 [" in pooled and "Nav-A3C" not in pooled and "fr_v1" not in pooled
     assert "| NUE (full) | 8 | " in pooled and "| FR | 8 | " in pooled
     table = pooled.split("Ordering by total SR, pooled")[0]
@@ -327,7 +330,12 @@ def test_two_further_sets_are_also_pooled_over_the_methods_that_ran_both():
     again = RM.render_results_md(a, {"command": "x"}, sets={"val": val, "val_plain": b})
     assert "## Pooled: Table I's episodes + `val_plain`\n" in again and "| FR | 8 | +0.0 [" in again.split("## Pooled")[1]
     named = RM.render_results_md(a, {"command": "x"}, sets={"val": val, "val_plain": b}, main_name="val252")
-    assert named == again.replace("## Pooled: Table I's episodes + `val_plain`\n", "## Pooled: `val252` + `val_plain`\n")
+    claims = "\n## NUE against every baseline"
+    assert named.split(claims)[0] == again.split(claims)[0].replace("## Pooled: Table I's episodes + `val_plain`\n",
+                                                                    "## Pooled: `val252` + `val_plain`\n")
+    # the claims across sets: named, the main set is val252, which holds val's episodes, so val is no column of its own
+    assert "`val`: ΔSR" in again.split(claims)[1] and "`val`: ΔSR" not in named.split(claims)[1]
+    assert "`val252`: ΔSR" in named.split(claims)[1]
 
 
 def test_an_episode_ending_off_the_planning_grid_is_left_out_of_dts_only():

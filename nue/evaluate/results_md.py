@@ -1,7 +1,8 @@
 """The text of RESULTS.md, a pure function of episode records and metadata: the main episode set's Table I
-next to the paper, its ordering, the paper's two claims (ablation ordering, NUE ahead of every baseline) step by step
-on every set, the earlier recipes' rows, paired differences, coverage and closed-loop diagnostics, then one section per
-further episode set (``results/records_<set>.jsonl``), the further sets pooled, then the discussion.
+next to the paper, its ordering, the earlier recipes' rows, paired differences, coverage and closed-loop diagnostics,
+then one section per further episode set (``results/records_<set>.jsonl``), the further sets pooled, the paper's two
+claims (ablation ordering, NUE ahead of every baseline) step by step on every set, the generalisation to held-out
+styles, then the discussion.
 The tables themselves are :mod:`nue.evaluate.report`'s. A method trained with several seeds (runs ``<model>@s<k>``) is
 one row of seed means in each Table I, and its paired differences pool seeds x episodes (:mod:`nue.evaluate.paired`);
 the notes on seeds appear only then, so a table of single runs reads as before."""
@@ -174,8 +175,6 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     ordering = ordering_markdown(rows, paper)
     if ordering:
         parts.append(f"## Ordering by total SR\n\n{ordering}")
-    independent = _not_extended({main_name or MAIN_SET: records, **(sets or {})})
-    parts += [text for text in (ablation_ordering_markdown(independent), baselines_markdown(independent)) if text]
     if earlier:
         parts.append("## Earlier recipes\n\nRows named `<method>_v<N>` are that method trained with an earlier recipe, "
                      "`<method>_v<N><letter>` an earlier run of a recipe (`checkpoints/README.md`), evaluated on the same episodes with the same seeds; they are left out "
@@ -207,6 +206,9 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
         pooled = pooled_section_markdown({main_name or MAIN_SET: records, **sets})
         if pooled:
             parts.append(pooled)
+    # the paper's claims across every set (after the sets' sections: the main ones do not depend on the others)
+    independent = _not_extended({main_name or MAIN_SET: records, **(sets or {})})
+    parts += [text for text in (ablation_ordering_markdown(independent), baselines_markdown(independent)) if text]
     if generalisation:
         section = generalisation_section(generalisation, {main_name or MAIN_SET: records, **(sets or {})})
         if section:
