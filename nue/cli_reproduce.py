@@ -41,6 +41,7 @@ def reproduce_cmd(
     from nue.recipes import get_recipe
     from nue.reproduce import RunFolders, check_recipe, remaining_estimate, reproduce
     from nue.reproduce_adopt import Adoption
+    from nue.reproduce_calibrate import calibration
 
     A.positive("--workers", workers)
     A.device("--device", device)
@@ -51,8 +52,11 @@ def reproduce_cmd(
     if estimate_only:
         if (out / "recipe.json").is_file():
             check_recipe(out, chosen)  # a run of another recipe: refused, as a rerun would be
-        left = remaining_estimate(chosen, RunFolders(out, scenes_root, episodes_root), workers, compile)
-        typer.echo(f"recipe {chosen.name!r}, {workers} worker(s):\n{format_estimate(left)}")
+        folders = RunFolders(out, scenes_root, episodes_root)
+        measured = calibration(chosen, folders, compile)
+        left = remaining_estimate(chosen, folders, workers, compile, measured.cost_model())
+        typer.echo(f"recipe {chosen.name!r}, {workers} worker(s):\n{format_estimate(left)}"
+                   + (f"\n{measured.describe()}" if measured.describe() else ""))
         return
     check_output_dir(out, "the run folder")
     check_output_dir(scenes_root, "the scenes folder")

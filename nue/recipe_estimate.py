@@ -92,15 +92,30 @@ class StageEstimate:
     """Finished by an earlier call of a resumed run (``seconds`` is then 0: nothing of it is left)."""
 
 
+def cost_key(table: tuple[tuple[str, float], ...], model: str) -> str:
+    """The entry of a per-model-kind cost table that prices ``model``: the model's own, else its kind's."""
+    return model if model in dict(table) else get_model_config(model).kind
+
+
 def _kind_cost(table: tuple[tuple[str, float], ...], model: str) -> float:
-    costs = dict(table)
-    return costs[model] if model in costs else costs[get_model_config(model).kind]
+    return dict(table)[cost_key(table, model)]
 
 
 def _memory_factor(table: tuple[tuple[str, float], ...], model: str, memory: str) -> float:
     """The speed-up ``table`` gives ``model`` under the recipe's memory preset (1 for ``fast``, an unlisted preset or
     a model that reads no maps)."""
     return dict(table).get(memory, 1.0) if get_model_config(model).uses_memory_maps else 1.0
+
+
+def train_rate(recipe: Recipe, model: str, cost: CostModel = CostModel(), compiled: bool = False) -> float:
+    """Modelled training throughput of ``model`` under ``recipe`` (its memory preset), samples a second."""
+    return (_kind_cost(cost.samples_per_s, model) * (_kind_cost(cost.compiled_speedup, model) if compiled else 1.0)
+            * _memory_factor(cost.map_train_speedup, model, recipe.memory))
+
+
+def episode_seconds(recipe: Recipe, model: str, cost: CostModel = CostModel()) -> float:
+    """Modelled evaluation seconds per episode of ``model`` under ``recipe``'s memory preset."""
+    return _kind_cost(cost.eval_s_per_episode, model) / _memory_factor(cost.memory_speedup, model, recipe.memory)
 
 
 def _makespan(durations: list[float], slots: int) -> float:
@@ -167,9 +182,7 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
         if recipe.train_minutes > 0:
             t = 60 * recipe.train_minutes
         else:
-            rate = (_kind_cost(cost.samples_per_s, m) * (_kind_cost(cost.compiled_speedup, m) if compiled else 1.0)
-                    * _memory_factor(cost.map_train_speedup, m, recipe.memory))
-            t = recipe.train_steps(m) * recipe.samples_per_step(m) / rate
+            t = recipe.train_steps(m) * recipe.samples_per_step(m) / train_rate(recipe, m, cost, compiled)
         rounds = 1 + recipe.dagger_rounds
         rollouts = recipe.dagger_rounds * n_eps * length * cost.collect_s_per_step * 1.2
         select_s = _kind_cost(cost.select_s_per_episode, m) / _memory_factor(cost.memory_speedup, m, recipe.memory)
@@ -183,12 +196,8 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
                              f"{f' x {1 + recipe.dagger_rounds} rounds' if recipe.dagger_rounds else ''}, {side}"))
     scale = min(1.0, recipe.eval_max_steps / 800) if recipe.eval_max_steps else 1.0
     swap = len(recipe.training_runs(recipe.swap_maps))
-    def episode_s(model: str) -> float:
-        """Evaluation seconds per episode of one model under the recipe's memory."""
-        return _kind_cost(cost.eval_s_per_episode, model) / _memory_factor(cost.memory_speedup, model, recipe.memory)
-
     for name, n in episode_counts(recipe).items():
-        per_ep = (sum(episode_s(r.model) for r in all_runs)
+        per_ep = (sum(episode_seconds(recipe, r.model, cost) for r in all_runs)
                   + sum(_kind_cost(cost.eval_s_per_episode, m) for m in recipe.experts))
         methods = len(all_runs) + len(recipe.experts)
         out.append(StageEstimate(f"eval/{name}", (n * per_ep * scale + methods * cost.eval_overhead_s) / w,
@@ -199,13 +208,13 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
                                      f"{n} episodes x {swap} {'model(s)' if swap == len(recipe.swap_maps) else 'runs'}, swapped maps"))
         if recipe.last_mile:
             wrapped = recipe.training_runs(recipe.last_mile)
-            per_ep = sum(episode_s(r.model) + dict(cost.eval_s_per_episode)["sling"] for r in wrapped)
+            per_ep = sum(episode_seconds(recipe, r.model, cost) + dict(cost.eval_s_per_episode)["sling"] for r in wrapped)
             out.append(StageEstimate(f"eval/{name}+sling", (n * per_ep * scale + len(wrapped) * cost.eval_overhead_s) / w,
                                      f"{n} episodes x {len(wrapped)} runs with SLING's last mile / {w} worker(s)"))
     explorers = recipe.training_runs(recipe.explore_models)
     for name, n in explore_counts(recipe).items():
         steps = recipe.explore_steps / cost.eval_steps_per_episode  # episodes' worth of steps per run
-        per_start = steps * (sum(episode_s(r.model) for r in explorers)
+        per_start = steps * (sum(episode_seconds(recipe, r.model, cost) for r in explorers)
                              + sum(_kind_cost(cost.eval_s_per_episode, m) for m in ("expert-explore", "nav_a3c")))
         methods = len(explorers) + 2
         out.append(StageEstimate(f"explore/{name}", (n * per_start + methods * cost.eval_overhead_s) / w,

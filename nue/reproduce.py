@@ -48,9 +48,10 @@ from nue.jobs import fail_point
 from nue.output_lock import hold_output
 from nue.policy.checkpoint import git_commit
 from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, explore_counts, format_duration, format_estimate
-from nue.recipe_estimate import collection_sizes
+from nue.recipe_estimate import CostModel, collection_sizes
 from nue.reproduce_adopt import Adoption, collection_index, finished_runs
 from nue.reproduce_adopt import adopt as adopt_into_run
+from nue.reproduce_calibrate import calibration
 from nue.reproduce_eval import (EXPLORE_REFERENCES, EXTRA_ROWS, eval_episodes_dir, explore_records,  # noqa: F401
                                 report_tables, run_eval_stage, run_explore_stage, run_methods as _methods)
 from nue.reproduce_marker import (HousesSummary, ReportSummary, RunFolders, StageMarker, StageSummary,  # noqa: F401
@@ -131,18 +132,20 @@ def _lines(path: Path) -> int:
         return sum(1 for line in f if line.strip())
 
 
-def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, compiled: bool = False) -> list[StageEstimate]:
+def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, compiled: bool = False,
+                       cost: CostModel = CostModel()) -> list[StageEstimate]:
     """:func:`~nue.recipe.estimate` of what is left of a (resumed) run: stages finished earlier are marked done,
     the training stage counts only the training runs not trained yet (a run folder at its last step counts as trained),
     a collection stage is scaled by the share of its episodes not collected yet, and an evaluation stage by the share
     of its (episode, method) runs its records file does not hold yet (the runs go episode by episode, every method
-    of an episode together, so that share is also a share of the cost)."""
+    of an episode together, so that share is also a share of the cost). ``cost``: the cost model (a run's own
+    measured rates: :func:`nue.reproduce_calibrate.calibration`)."""
     trained = [r.name for r in recipe.training_runs()]
     pending = [r for r in trained if stage_done(folders, f"train/{r}") is None]
     pending = [r for r in pending if r not in finished_runs(recipe, folders, pending)]  # adopted: only a selection left
     counts = episode_counts(recipe)
     out = []
-    for s in estimate(recipe, workers, compiled=compiled, runs=pending):
+    for s in estimate(recipe, workers, cost=cost, compiled=compiled, runs=pending):
         done = not pending if s.stage == "train" else stage_done(folders, s.stage) is not None
         if done:
             out.append(replace(s, seconds=0.0, done=True, detail="finished in an earlier call"))
@@ -205,9 +208,10 @@ def reproduce(recipe: Recipe, out, scenes_root="data/scenes", episodes_root="epi
 
 def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device, results_md, echo, progress,
                compile) -> ReproduceResult:
-    est = {s.stage: s for s in remaining_estimate(recipe, folders, workers, compile)}
+    measured = calibration(recipe, folders, compile)
+    est = {s.stage: s for s in remaining_estimate(recipe, folders, workers, compile, measured.cost_model())}
     echo(f"nue reproduce: recipe {recipe.name!r} -> {folders.out}; estimated wall-clock with {workers} worker(s):\n"
-         f"{format_estimate(list(est.values()))}")
+         f"{format_estimate(list(est.values()))}" + (f"\n{measured.describe()}" if measured.describe() else ""))
     stages = plan_stages(recipe)
     ran: list[str] = []
     done = {s: stage_done(folders, s) for s in stages}

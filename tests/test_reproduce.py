@@ -126,7 +126,10 @@ def test_a_killed_run_resumes_without_redoing_a_stage(run):
     assert "  train/abl_none: done" in text and "  report: done" in text
     estimate_lines = text[: text.index("[1/")].splitlines()
     assert any(line.split()[:2] == ["collect", "done"] for line in estimate_lines)  # the rerun estimates what is left
-    assert "1 trained earlier" in text and estimate_lines[-1].endswith("left to run")
+    assert "1 trained earlier" in text and estimate_lines[-2].endswith("left to run")
+    # ... at the rates the first call measured: its one training run (NUE), its records timed no episode steps
+    assert estimate_lines[-1].startswith("  calibrated to this run's measured costs") and "nue x" in estimate_lines[-1]
+    assert "training time nue x" in estimate_lines[-1] and "(1 run)" in estimate_lines[-1]
     for part, stamps in before.items():  # collected episodes, the finished model's run folder, the stage markers
         now = _stamps(out / part)
         assert {k: now[k] for k in stamps} == stamps, part
@@ -135,8 +138,10 @@ def test_a_killed_run_resumes_without_redoing_a_stage(run):
 def test_estimate_only_prints_what_is_left_of_a_run_and_refuses_another_recipe(run):
     out, _, _, _, args = run
     code, text = _nue(*args, "--estimate")
-    assert code == 0 and all(line.split()[1] == "done" for line in text.splitlines()[1:-1]), text
-    assert text.splitlines()[-1].split()[:3] == ["total", "0", "s"]
+    lines = text.splitlines()
+    assert lines[-1].startswith("  calibrated to this run's measured costs"), text  # from its finished work
+    assert code == 0 and all(line.split()[1] == "done" for line in lines[1:-2]), text
+    assert lines[-2].split()[:3] == ["total", "0", "s"]
     code, _ = _nue("reproduce", "--recipe", "v6", "--out", out, "--estimate")
     assert code == 2
 
