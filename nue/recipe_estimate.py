@@ -5,7 +5,7 @@ evaluation episodes, on ``workers`` parallel processes; printed before a run and
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Mapping, Sequence
 
 from nue.policy.config import get_model_config
 from nue.scene.generator import SPLITS
@@ -159,11 +159,12 @@ def collection_sizes(recipe: Recipe) -> list[int]:
 
 
 def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), compiled: bool = False,
-             runs: Sequence[str] | None = None) -> list[StageEstimate]:
+             runs: Sequence[str] | None = None, trained: Mapping[str, float] | None = None) -> list[StageEstimate]:
     """Wall-clock per stage of ``recipe`` with ``workers`` parallel processes (a Ray cluster: its CPUs); ``compiled``:
     training with ``torch.compile``; ``runs``: the training runs (:meth:`Recipe.training_runs` names: every seed of a
-    model is one) the training stage still has to train (default: all). Every seed's run is trained, selected and
-    evaluated (the swapped-maps control too) as a model of its own."""
+    model is one) the training stage still has to train (default: all); ``trained``: the share of its training a run
+    has done already (a resumed run's ``last.pt``; behaviour cloning only, DAgger's rounds are costed whole). Every
+    seed's run is trained, selected and evaluated (the swapped-maps control too) as a model of its own."""
     w = max(1, workers)
     out = []
     houses = sum(c.houses_count for c in recipe.collections()) + sum(
@@ -183,6 +184,8 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
             t = 60 * recipe.train_minutes
         else:
             t = recipe.train_steps(m) * recipe.samples_per_step(m) / train_rate(recipe, m, cost, compiled)
+        if not recipe.dagger_rounds:
+            t *= 1 - min(1.0, max(0.0, (trained or {}).get(name, 0.0)))
         rounds = 1 + recipe.dagger_rounds
         rollouts = recipe.dagger_rounds * n_eps * length * cost.collect_s_per_step * 1.2
         select_s = _kind_cost(cost.select_s_per_episode, m) / _memory_factor(cost.memory_speedup, m, recipe.memory)
@@ -192,8 +195,11 @@ def estimate(recipe: Recipe, workers: int = 1, cost: CostModel = CostModel(), co
               else f"{recipe.train_samples:,} samples" if recipe.train_samples > 0 else "its steps")
     side = f"{min(w, len(jobs))} side by side on one core each" if w > 1 else "one at a time on one core"
     what = f"{len(jobs)} models" if len(all_runs) == len(recipe.models) else f"{len(jobs)} runs (models x seeds)"
+    part = [f"{n} {100 * trained[n]:.0f}%" for n in (runs or ()) if trained and 0 < trained.get(n, 0) < 1
+            and not recipe.dagger_rounds]
     out.append(StageEstimate("train", _makespan(jobs, w), f"{what} x {budget}{' (compiled)' if compiled else ''}{select}"
-                             f"{f' x {1 + recipe.dagger_rounds} rounds' if recipe.dagger_rounds else ''}, {side}"))
+                             f"{f' x {1 + recipe.dagger_rounds} rounds' if recipe.dagger_rounds else ''}, {side}"
+                             + (f"; trained already: {', '.join(part)}" if part else "")))
     scale = min(1.0, recipe.eval_max_steps / 800) if recipe.eval_max_steps else 1.0
     swap = len(recipe.training_runs(recipe.swap_maps))
     for name, n in episode_counts(recipe).items():

@@ -49,7 +49,7 @@ from nue.output_lock import hold_output
 from nue.policy.checkpoint import git_commit
 from nue.recipe import Recipe, StageEstimate, episode_counts, estimate, explore_counts, format_duration, format_estimate
 from nue.recipe_estimate import CostModel, collection_sizes
-from nue.reproduce_adopt import Adoption, collection_index, finished_runs
+from nue.reproduce_adopt import Adoption, collection_index, finished_runs, trained_shares
 from nue.reproduce_adopt import adopt as adopt_into_run
 from nue.reproduce_calibrate import calibration
 from nue.reproduce_eval import (EXPLORE_REFERENCES, EXTRA_ROWS, eval_episodes_dir, explore_records,  # noqa: F401
@@ -135,7 +135,8 @@ def _lines(path: Path) -> int:
 def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, compiled: bool = False,
                        cost: CostModel = CostModel()) -> list[StageEstimate]:
     """:func:`~nue.recipe.estimate` of what is left of a (resumed) run: stages finished earlier are marked done,
-    the training stage counts only the training runs not trained yet (a run folder at its last step counts as trained),
+    the training stage counts only the training runs not trained yet (a run folder at its last step counts as trained;
+    one part-way through, the share of its training left),
     a collection stage is scaled by the share of its episodes not collected yet, and an evaluation stage by the share
     of its (episode, method) runs its records file does not hold yet (the runs go episode by episode, every method
     of an episode together, so that share is also a share of the cost). ``cost``: the cost model (a run's own
@@ -145,7 +146,8 @@ def remaining_estimate(recipe: Recipe, folders: RunFolders, workers: int = 1, co
     pending = [r for r in pending if r not in finished_runs(recipe, folders, pending)]  # adopted: only a selection left
     counts = episode_counts(recipe)
     out = []
-    for s in estimate(recipe, workers, cost=cost, compiled=compiled, runs=pending):
+    for s in estimate(recipe, workers, cost=cost, compiled=compiled, runs=pending,
+                      trained=trained_shares(recipe, folders, pending)):
         done = not pending if s.stage == "train" else stage_done(folders, s.stage) is not None
         if done:
             out.append(replace(s, seconds=0.0, done=True, detail="finished in an earlier call"))

@@ -140,14 +140,30 @@ def adopt(recipe: Recipe, folders: RunFolders, adoptions: list[Adoption], device
     return lines
 
 
+def _last(folders: RunFolders, name: str) -> dict | None:
+    """A training run's ``last.pt`` (memory-mapped: only its counters are read), or None."""
+    last = folders.run(name) / "last.pt"
+    return torch.load(last, map_location="cpu", weights_only=False, mmap=True) if last.is_file() else None
+
+
+def trained_shares(recipe: Recipe, folders: RunFolders, runs: list[str]) -> dict[str, float]:
+    """The share of its training each of ``runs`` has done: its folder's ``last.pt`` step over the recipe's steps
+    (the trainer's clock over the budget for a time budget); runs without a ``last.pt`` are left out."""
+    out = {}
+    for name in runs:
+        ck = _last(folders, name)
+        if ck is not None:
+            out[name] = (float(ck.get("elapsed_s", 0.0)) / (60 * recipe.train_minutes) if recipe.train_minutes > 0
+                         else ck.get("step", 0) / recipe.train_steps(recipe.training_run(name).model))
+    return out
+
+
 def finished_runs(recipe: Recipe, folders: RunFolders, runs: list[str]) -> set[str]:
     """Those of ``runs`` whose folder holds a ``last.pt`` at the recipe's final step (adopted, or killed after
     training): their stage costs a resumed selection, not a training."""
     out = set()
     for name in runs:
-        last = folders.run(name) / "last.pt"
-        if last.is_file():
-            step = torch.load(last, map_location="cpu", weights_only=False, mmap=True).get("step", 0)
-            if step >= recipe.train_steps(recipe.training_run(name).model):
-                out.add(name)
+        ck = _last(folders, name)
+        if ck is not None and ck.get("step", 0) >= recipe.train_steps(recipe.training_run(name).model):
+            out.add(name)
     return out

@@ -79,3 +79,24 @@ def test_factors_are_medians_over_runs_and_unmeasured_entries_take_the_pooled_on
     plain = {s.stage: s for s in remaining_estimate(V12, folders, 2)}
     assert left["eval/val252+swap"].seconds == pytest.approx(
         plain["eval/val252+swap"].seconds + (1.15 - 1) * (plain["eval/val252+swap"].seconds - 3 * C.eval_overhead_s / 2))
+
+
+def test_a_run_part_way_through_training_is_costed_for_what_it_has_left(tmp_path):
+    """nue@s2's last.pt at step 1,000 of 4,000: a quarter of its training done, so alone on one worker it costs 3/4
+    of the modelled training plus its whole selection; fr@s2's last.pt at the final step counts it as trained (only
+    its selection is left, not costed)."""
+    import torch
+
+    folders = RunFolders(tmp_path, Path(), Path())
+    for name in ("nue@s2", "fr@s2"):
+        folders.run(name).mkdir(parents=True)
+    torch.save({"step": 1000}, folders.run("nue@s2") / "last.pt")
+    torch.save({"step": 4000}, folders.run("fr@s2") / "last.pt")
+    (one,) = [s for s in estimate(V12, 1, runs=["nue@s2"], trained={"nue@s2": 0.25}) if s.stage == "train"]
+    assert one.seconds == pytest.approx(C.train_overhead_s + 0.75 * NUE_TRAIN_S + 42 * 11.5 / 1.70)
+    assert "trained already: nue@s2 25%" in one.detail
+    left = {s.stage: s for s in remaining_estimate(V12, folders, 2)}["train"]
+    others = [r.name for r in V12.training_runs() if r.name != "fr@s2"]
+    assert left.seconds == pytest.approx(
+        {s.stage: s for s in estimate(V12, 2, runs=others, trained={"nue@s2": 0.25})}["train"].seconds)
+    assert "23 runs" in left.detail and "nue@s2 25%" in left.detail and "fr@s2" not in left.detail
