@@ -54,9 +54,8 @@ def reproduce_cmd(
             check_recipe(out, chosen)  # a run of another recipe: refused, as a rerun would be
         folders = RunFolders(out, scenes_root, episodes_root)
         measured = calibration(chosen, folders, compile)
-        left = remaining_estimate(chosen, folders, workers, compile, measured.cost_model())
-        typer.echo(f"recipe {chosen.name!r}, {workers} worker(s):\n{format_estimate(left)}"
-                   + (f"\n{measured.describe()}" if measured.describe() else ""))
+        left, note = remaining_estimate(chosen, folders, workers, compile, measured.cost_model()), measured.describe()
+        typer.echo(f"recipe {chosen.name!r}, {workers} worker(s):\n{format_estimate(left)}" + (f"\n{note}" if note else ""))
         return
     check_output_dir(out, "the run folder")
     check_output_dir(scenes_root, "the scenes folder")

@@ -212,8 +212,9 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
                compile) -> ReproduceResult:
     measured = calibration(recipe, folders, compile)
     est = {s.stage: s for s in remaining_estimate(recipe, folders, workers, compile, measured.cost_model())}
+    note = measured.describe()
     echo(f"nue reproduce: recipe {recipe.name!r} -> {folders.out}; estimated wall-clock with {workers} worker(s):\n"
-         f"{format_estimate(list(est.values()))}" + (f"\n{measured.describe()}" if measured.describe() else ""))
+         f"{format_estimate(list(est.values()))}" + (f"\n{note}" if note else ""))
     stages = plan_stages(recipe)
     ran: list[str] = []
     done = {s: stage_done(folders, s) for s in stages}
