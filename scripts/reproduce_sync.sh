@@ -50,6 +50,8 @@ case "${1:-}" in
       for f in "$run/runs/$model"/selection*; do [ -e "$f" ] && cp "$f" "$store/runs/$model/"; done
     done
     [ -d "$run/records" ] && cp -r "$run/records/." "$store/records/"  # with records/explore/
+    # but not the lock a running evaluation holds beside its records (nue.output_lock; git ignores it)
+    find "$store/records" -name '.*.lock' -delete
     # in the repository, a file git would not commit is not saved (session 1's best.pt files were lost to a .gitignore
     # pattern)
     case "$store" in /*) ;; *)

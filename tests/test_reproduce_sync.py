@@ -99,6 +99,7 @@ def _scratch_repo(tmp_path: Path, run: Path, **env_extra: str):
         return subprocess.run(["bash", str(script), "commit"], env=env, capture_output=True, text=True)
 
     git("init", "-q")
+    (repo / ".gitignore").write_bytes((SCRIPT.parents[1] / ".gitignore").read_bytes())  # the repository's patterns
     return repo, commit, git
 
 
@@ -144,3 +145,15 @@ def test_commit_checkpoints_commits_each_finished_runs_best_pt_once(run, tmp_pat
     assert git("show", "HEAD:results/run/runs/nue@s1/best.sha256").stdout.split() == [digest, "best.pt"]
     res = commit()
     assert res.returncode == 0 and res.stdout.strip() == "nothing new"
+
+
+def test_commit_during_an_evaluation_leaves_the_writers_lock_behind(run, tmp_path):
+    """A running ``nue eval`` holds ``.val252.jsonl.lock`` beside its records (``nue.output_lock``); git ignores it,
+    so a store holding a copy made every ``commit`` fail (autosave hid it: nothing of the evaluation was saved)."""
+    repo, commit, git = _scratch_repo(tmp_path, run)
+    (run / "records" / ".val252.jsonl.lock").write_text("12345")
+    (run / "records" / "explore" / ".val252.jsonl.lock").write_text("12345")
+    res = commit()
+    assert res.returncode == 0, res.stderr
+    assert "results/run/records/val252.jsonl" in git("ls-tree", "-r", "--name-only", "HEAD").stdout.split()
+    assert not list((repo / "results" / "run" / "records").rglob("*.lock"))
