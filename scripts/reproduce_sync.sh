@@ -104,7 +104,8 @@ print(' '.join(r.name for r in get_recipe(json.load(open(sys.argv[1]))['recipe']
     minutes=${2:-20}
     while true; do
       sleep $((60 * minutes))
-      RUN=$run bash "$self" commit > /dev/null 2>&1 || true
+      # a failed commit is reported on stderr (with its error line) and retried at the next one, never fatal
+      RUN=$run bash "$self" commit > /dev/null || echo "autosave: commit failed at $(date -u '+%F %H:%M UTC')" >&2
     done ;;
   *) echo "usage: $0 save|restore|commit|autosave [MINUTES]" >&2; exit 2 ;;
 esac
