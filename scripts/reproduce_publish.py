@@ -14,8 +14,9 @@
    those of ``val252`` on the 84 episodes of ``episodes/val``. The rows already there: the previous recipe's rows
    are renamed ``<row>_<previous>`` (``nue+swap`` -> ``nue_v6+swap``, ``sling+fr`` -> ``sling+fr_v6``, ``nue@s1`` ->
    ``nue_v6@s1``: RESULTS.md's "Earlier recipes"); earlier recipes' rows (``*_v<N>``) stay; the experts' rows are
-   replaced by the run's where it has them (the script counts those whose outcome differs: simulator and experts
-   are deterministic, so none should), else kept; any other row (a memory baseline's or SLING's experiment appended to the table) must be a copy
+   replaced by the run's where it has them (the script counts, per expert, those whose outcome differs: simulator
+   and experts are deterministic, so ``expert``'s should not; ``expert-explore`` steers by its seen map, which the
+   depth check of 7a2b8f9 changed after v6, so some of v6's differ), else kept; any other row (a memory baseline's or SLING's experiment appended to the table) must be a copy
    of a record committed elsewhere under ``results/`` and is removed, else the script stops naming it. Every kept
    row's ``extra.key`` becomes ``<method>/<scene>/<episode_id>`` (``nue view --key`` finds a record by it). The
    hand-off file beside a records file (``records_<set>.handoff.jsonl``: the hand-off of records made before the
@@ -25,7 +26,8 @@
    ``expert-explore`` and ``random`` are replaced like the experts).
 
 Then regenerate the derived files and RESULTS.md with the commands the script prints. ``--root`` (default: the
-repository holding this script) may be a copy (a preview); ``--partial`` skips the check that the run finished.
+repository holding this script) may be a copy (a preview); ``--partial`` skips the check that the run finished and
+publishes only the sets the run has records of (the others' files are left as they are).
 ``--table`` only prints the shipped rows' table for ``checkpoints/README.md`` and changes nothing.
 A problem is one line ``error: <path>: <problem>`` and exit status 2.
 """
@@ -123,14 +125,15 @@ def merge(path: Path, new: list[dict], prev_rows: set[str], previous: str, exper
     old = read_jsonl(path) if path.exists() else []
     ran = {identity(r): r for r in new}
     old_methods = {r["method"] for r in old}
-    kept, differ, removed = [], 0, 0
+    kept, removed = [], 0
+    differ = {m: 0 for m in sorted(experts & old_methods)}
     keys: dict[str, str] = {}
     for r in old:
         method = r["method"]
         if method in experts:
             twin = ran.get(identity(r))
             if twin is not None:
-                differ += outcome(twin) != outcome(r)
+                differ[method] += outcome(twin) != outcome(r)
                 continue  # the run's record of the same expert episode replaces it
         elif (name := renamed(method, prev_rows, previous)) is not None:
             method = name
@@ -146,8 +149,9 @@ def merge(path: Path, new: list[dict], prev_rows: set[str], previous: str, exper
         keys[record_key(r)] = key
         kept.append({**r, "method": method, "extra": {**r.get("extra", {}), "key": key}})
     rows = kept + new
+    differs = ", ".join(f"{m} {n}" for m, n in differ.items()) or "none"
     return rows, keys, (f"{path}: {len(old)} -> {len(rows)} records ({len(new)} from the run; {removed} removed, "
-                        f"copies elsewhere; expert records whose outcome differs from the earlier one: {differ})")
+                        f"copies elsewhere; expert records whose outcome differs from the earlier one: {differs})")
 
 
 def moved_handoff(path: Path, keys: dict[str, str]) -> tuple[Path, list[dict], str] | None:
@@ -173,16 +177,22 @@ def _earlier(method: str) -> bool:
     return is_earlier_recipe(method)
 
 
-def plan_records(root: Path, run: Path, recipe, previous_recipe) -> list[tuple[Path, list[dict], str]]:
-    """(file, its rows after publishing, what changed) for every records, hand-off and exploration file."""
+def plan_records(root: Path, run: Path, recipe, previous_recipe, partial: bool = False
+                 ) -> tuple[list[tuple[Path, list[dict], str]], list[str]]:
+    """(file, its rows after publishing, what changed) for every records, hand-off and exploration file, and the
+    sets left out: with ``partial`` a set the run has no records of yet is skipped (its file is left as it is)."""
     from nue.evaluate.runner import EXPERT_METHODS
 
     prev_rows = {t.name for t in previous_recipe.training_runs() if t.seed_index == 0}
     experts = set(EXPERT_METHODS)  # not trained: the run's record replaces an earlier one, else that one stays
     targets: list[tuple[Path, list[dict]]] = []
+    skipped: list[str] = []
     for s in recipe.eval_sets:
         new = [r for stage in (s, f"{s}{SWAP}", f"{s}+sling") for f in [run / "records" / f"{stage}.jsonl"]
                if f.exists() for r in read_jsonl(f)]
+        if not new and partial:
+            skipped.append(s)
+            continue
         if not new:
             raise Refused(run / "records" / f"{s}.jsonl", "missing: the run has no records of this set")
         targets.append((root / "results" / f"records_{s}.jsonl", new))
@@ -192,6 +202,9 @@ def plan_records(root: Path, run: Path, recipe, previous_recipe) -> list[tuple[P
                             [r for r in new if (r["scene"], str(r["episode_id"])) in keys]))
     for s in recipe.explore_sets:
         f = run / "records" / "explore" / f"{s}.jsonl"
+        if not f.exists() and partial:
+            skipped.append(f"explore/{s}")
+            continue
         if not f.exists():
             raise Refused(f, "missing: the run has no exploration records of this set")
         targets.append((root / "results" / f"explore_{s}.jsonl", read_jsonl(f)))
@@ -203,7 +216,7 @@ def plan_records(root: Path, run: Path, recipe, previous_recipe) -> list[tuple[P
         handoff = moved_handoff(path, keys)
         if handoff is not None:
             out.append(handoff)
-    return out
+    return out, skipped
 
 
 def plan_checkpoints(root: Path, run: Path, recipe, not_shipped: set[str], max_mb: float) -> list[str]:
@@ -318,20 +331,26 @@ def main(argv: list[str] | None = None) -> None:
             return
         if not a.partial and not (a.run / "stages" / "report.json").exists():
             raise Refused(a.run / "stages", "the run has not finished (no report.json); --partial previews it")
-        planned = plan_records(a.root, a.run, recipe, previous)  # every check before the first write
+        # every check before the first write
+        planned, skipped = plan_records(a.root, a.run, recipe, previous, a.partial)
         print(publish_checkpoints(a.root, a.run, shipped, previous.name, a.previous_checkpoints == "keep"))
         for path, rows, line in planned:
             write_jsonl(path, rows)
             print(line)
+        for s in skipped:
+            print(f"{s}: no records in the run yet, left as it was (--partial)")
     except Refused as e:
         path, problem = e.args
         print(f"error: {path}: {problem}", file=sys.stderr)
         sys.exit(2)
-    sets = " ".join(f"--set {s}=results/records_{s}.jsonl" for s in recipe.eval_sets if s != "val252")
-    explore = " ".join(f"--explore {s}=results/explore_{s}.jsonl" for s in recipe.explore_sets)
+    sets = " ".join(f"--set {s}=results/records_{s}.jsonl" for s in recipe.eval_sets
+                    if s != "val252" and (a.root / "results" / f"records_{s}.jsonl").exists())
+    explore = " ".join(f"--explore {s}=results/explore_{s}.jsonl" for s in recipe.explore_sets
+                       if (a.root / "results" / f"explore_{s}.jsonl").exists())
     from nue.sim.episode_sets import held_out_sets
 
-    held = " --generalisation val252" if set(held_out_sets()) & set(recipe.eval_sets) else ""
+    published = {s for s in recipe.eval_sets if (a.root / "results" / f"records_{s}.jsonl").exists()}
+    held = " --generalisation val252" if set(held_out_sets()) & published else ""
     print("next: update RESULTS.meta.json; then\n  nue report results/records_val252.jsonl --name val252 "
           f"--set val=results/records.jsonl {sets} {explore}{held} --out results/report --results-md RESULTS.md")
 

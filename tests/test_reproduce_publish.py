@@ -125,11 +125,30 @@ def test_a_finished_run_becomes_the_shipped_rows(setup, capsys):
 
     out = capsys.readouterr().out
     assert "8 rows shipped" in out and "1 removed" not in out and "18 removed, copies elsewhere" in out
-    assert "whose outcome differs from the earlier one: 15" in out  # the old expert rows were made to differ
+    assert "whose outcome differs from the earlier one: expert 15)" in out  # the old expert rows were made to differ
     # published twice: refused before anything changes
     before = _snapshot(root)
     assert _publish(root, run) == 2
     assert "published before" in capsys.readouterr().err and _snapshot(root) == before
+
+
+def test_partial_publishes_the_sets_the_run_has_reached(setup, capsys):
+    root, run = setup
+    (run / "stages" / "report.json").unlink()
+    for f in ("val_plain.jsonl", "val_plain+swap.jsonl", "val_plain+sling.jsonl", "explore/val252.jsonl"):
+        (run / "records" / f).unlink()
+    before = _snapshot(root)
+    assert _publish(root, run) == 2  # unfinished: refused without --partial, nothing changed
+    assert "has not finished" in capsys.readouterr().err and _snapshot(root) == before
+
+    assert _publish(root, run, "--partial") == 0, capsys.readouterr().err
+    out = capsys.readouterr().out
+    assert _methods(root / "results" / "records_val252.jsonl")["nue"] == 18
+    assert not (root / "results" / "records_val_plain.jsonl").exists()  # not reached: left as it was
+    explore = _methods(root / "results" / "explore_val252.jsonl")
+    assert explore == {"nue": 3, "random": 3}  # the repository's file, untouched
+    assert "val_plain: no records in the run yet" in out and "explore/val252: no records in the run yet" in out
+    assert "--set val_plain=" not in out and "--explore val252=results/explore_val252.jsonl" in out
 
 
 def test_drop_deletes_the_replaced_checkpoints(setup, capsys):
