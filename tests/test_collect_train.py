@@ -24,6 +24,8 @@ from nue.train.episode_file import read_episode_file, read_header
 
 from .conftest import BOX_ROOM, nue_here
 
+REPO = Path(__file__).resolve().parents[1]
+
 MAP_KEYS = ("i_u", "i_cog")
 TINY = get_memory("fast").replace(name="tiny", train_rays=32, iters_per_update=1)
 """The default memory with 1 iteration of 32 rays a step instead of 2 of 512 (its updates were 3/4 of a collection
@@ -355,6 +357,22 @@ def test_resumed_training_refuses_other_settings(demos, tmp_path):
     shutil.copytree(demos, second)
     with pytest.raises(CheckpointError, match=r"training data folders \(manifests (\w+) -> \1\+\1\)"):
         train(cfg.replace(data=f"{demos},{second}"), resume=True, progress=False)
+
+
+def test_a_resume_point_of_another_model_is_refused():
+    from nue.errors import CheckpointError
+    from nue.policy.checkpoint import PolicyHeader, load_checkpoint, load_resumable
+    from nue.policy.config import get_model_config
+
+    path = REPO / "checkpoints" / "fr.pt"
+    stored = load_checkpoint(path)
+    model = PolicyHeader.from_dict(stored, path).model
+    assert load_resumable(path, model, stored)["step"] == stored["step"]  # its own settings: resumable
+    with pytest.raises(CheckpointError, match="fr.pt: was trained with another model config"):
+        load_resumable(path, get_model_config("nav_a3c"), stored)
+    lr = {**stored, "train_config": {**stored["train_config"], "lr": 0.5}}
+    with pytest.raises(CheckpointError, match=rf"other settings \(lr {stored['train_config']['lr']} -> 0.5\)"):
+        load_resumable(path, model, lr)
 
 
 @pytest.mark.parametrize("model, extra", [("nav_a3c", {}), ("nue", {"map_dropout": 0.5, "buffer_episodes": 3}),

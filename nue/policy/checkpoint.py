@@ -310,3 +310,17 @@ def resume_mismatches(stored: dict, now: dict) -> list[str]:
     if before is not None and before != after:  # every folder's manifest (checkpoints before it was recorded: the first)
         out.append(f"training data folders (manifests {'+'.join(before)} -> {'+'.join(after or [])})")
     return out
+
+
+def load_resumable(path: Path, model_cfg: ModelConfig, meta: dict) -> dict:
+    """The ``last.pt`` a training run resumes from, once it is known to continue the same run: a CheckpointError
+    when it was trained with another model config or other settings (:func:`resume_mismatches` against ``meta``,
+    the :func:`policy_meta` of the run about to start)."""
+    ck = load_checkpoint(path)
+    if PolicyHeader.from_dict(ck, path).model != model_cfg:
+        raise CheckpointError(path, "was trained with another model config; use another --out")
+    changed = resume_mismatches(ck, meta)
+    if changed:
+        raise CheckpointError(path, f"was started with other settings ({'; '.join(changed)}); "
+                              "resume with the same settings or use another --out")
+    return ck

@@ -29,7 +29,7 @@ from nue.jobs import fail_point
 from nue.output_lock import hold_output
 from nue.policy import build_model
 from nue.policy.accuracy import held_out_accuracy
-from nue.policy.checkpoint import PolicyHeader, load_checkpoint, policy_meta, resume_mismatches, save_checkpoint
+from nue.policy.checkpoint import PolicyHeader, load_checkpoint, load_resumable, policy_meta, save_checkpoint
 from nue.policy.config import get_model_config
 from nue.sim.task import get_task
 from nue.train.losses import bc_loss, class_weights, goal_head_loss, in_view_weight  # noqa: F401  (re-exported)
@@ -268,13 +268,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool, select: Selector | No
     if resume and (out_dir / "last.pt").is_file():
         # Everything the next step depends on: weights, optimiser, schedule, clock, and per rank the
         # generator, the sampler's position and torch's generator (older checkpoints: the generator only).
-        ck = load_checkpoint(out_dir / "last.pt")
-        if PolicyHeader.from_dict(ck, out_dir / "last.pt").model != model_cfg:
-            raise CheckpointError(out_dir / "last.pt", "was trained with another model config; use another --out")
-        changed = resume_mismatches(ck, meta)
-        if changed:
-            raise CheckpointError(out_dir / "last.pt", f"was started with other settings ({'; '.join(changed)}); "
-                                  "resume with the same settings or use another --out")
+        ck = load_resumable(out_dir / "last.pt", model_cfg, meta)
         model.load_state_dict(ck["model_state"])
         opt.load_state_dict(ck["optimizer"])
         sched.load_state_dict(ck["scheduler"])

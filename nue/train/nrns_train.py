@@ -33,7 +33,7 @@ from tqdm import tqdm
 from nue.errors import CheckpointError, ConfigError, DataError
 from nue.output_lock import hold_output
 from nue.policy import build_model
-from nue.policy.checkpoint import PolicyHeader, load_checkpoint, policy_meta, resume_mismatches, save_checkpoint
+from nue.policy.checkpoint import PolicyHeader, load_checkpoint, load_resumable, policy_meta, save_checkpoint
 from nue.policy.config import get_model_config
 from nue.policy.nrns_model import DistanceNetwork
 from nue.sim.task import get_task
@@ -184,13 +184,7 @@ def _train(cfg: TrainConfig, resume: bool, progress: bool) -> TrainResult:
                        demos.summary())
     step, best, elapsed = 0, -math.inf, 0.0
     if resume and (out_dir / "last.pt").is_file():
-        ck = load_checkpoint(out_dir / "last.pt")
-        if PolicyHeader.from_dict(ck, out_dir / "last.pt").model != model_cfg:
-            raise CheckpointError(out_dir / "last.pt", "was trained with another model config; use another --out")
-        changed = resume_mismatches(ck, meta)
-        if changed:
-            raise CheckpointError(out_dir / "last.pt", f"was started with other settings ({'; '.join(changed)}); "
-                                  "resume with the same settings or use another --out")
+        ck = load_resumable(out_dir / "last.pt", model_cfg, meta)
         model.load_state_dict(ck["model_state"])
         opt.load_state_dict(ck["optimizer"])
         sched.load_state_dict(ck["scheduler"])
