@@ -406,6 +406,16 @@ def test_a_method_with_several_seeds_is_one_row_of_seed_means_with_their_range()
     assert R.method_label("nue@s1") == "NUE (full) @s1" and R.method_label("custom@s1") == "custom@s1"
 
 
+def test_runs_of_one_method_stand_together_and_seed_0_is_named_beside_the_others():
+    keys = ["expert", "nue@s2", "fr", "vgm@s1", "nue", "vgm", "nue_v6@s1", "nue_v6", "nue@s1+swap", "nue+swap", "nue@s1"]
+    assert R.order_methods(keys) == ["fr", "vgm", "vgm@s1", "nue", "nue@s1", "nue@s2", "expert", "nue+swap",
+                                     "nue@s1+swap", "nue_v6", "nue_v6@s1"]
+    assert R.order_methods(["nue@s1"]) == ["nue@s1"]  # a seed's run without its seed 0 still has its place
+    assert [R.run_label(k, keys) for k in ("nue", "nue@s1", "fr", "nue+swap")] == [
+        "NUE (full) @s0", "NUE (full) @s1", "FR", "nue+swap @s0"]
+    assert R.run_label("nue", ["nue", "fr@s1"]) == "NUE (full)"  # no other seed of its own
+
+
 def test_paired_differences_pool_seeds_x_episodes():
     """Per episode, each method's seed mean: no-f_u (1, 1, 2/3, 1/3), NUE (1, .5, 0, 0), FR (0, 0, 1, 0) -> SR
     differences +.375 and -.125; every (method seed, NUE seed) pair of runs has its own: 3 x 2 and 1 x 2."""

@@ -34,7 +34,7 @@ import numpy as np
 
 from nue.errors import DataError
 from nue.evaluate.record_keys import OnDropped, UniqueKeys
-from nue.evaluate.table import by_method, canonical_method, method_label
+from nue.evaluate.table import by_method, canonical_method, run_label
 from nue.sim.record import EpisodeRecord, RecordFormatError, Trajectory
 from nue.sim.task import TaskConfig, get_task
 
@@ -311,7 +311,7 @@ def format_record_diagnostics(diags: dict[str, RecordDiagnostics]) -> str:
     for key, d in diags.items():
         hist = d.action_fractions
         acts = "n/a" if not d.counts.steps else " / ".join(fmt(hist[n], ".1f", 100) for n in d.actions)
-        lines.append(f"| {method_label(key)} | {d.episodes} | {d.steps} | {fmt(d.collisions_per_episode, '.2f')} | "
+        lines.append(f"| {run_label(key, diags)} | {d.episodes} | {d.steps} | {fmt(d.collisions_per_episode, '.2f')} | "
                      f"{fmt(d.collisions_per_step, '.3f')} | {fmt(d.p_forward_after_blocked, '.1f', 100)} | "
                      f"{_stuck_cell(d)} | {fmt(d.p_blocked_again, '.1f', 100)} | "
                      f"{fmt(d.turn_reversal_rate, '.1f', 100)} | {acts} | {d.without_trajectory} |")

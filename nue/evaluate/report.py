@@ -33,7 +33,7 @@ from nue.evaluate.paired import (  # noqa: F401  (re-exported)
 from nue.evaluate.record_keys import OnDropped
 from nue.evaluate.stats import paired_bootstrap, seed_episode_bootstrap, wilson_interval  # noqa: F401  (re-exported)
 from nue.evaluate.table import (  # noqa: F401  (re-exported)
-    DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, method_label, order_methods,
+    DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, method_label, order_methods, run_label,
     paper_table, seed_run_name, split_seed,
 )
 from nue.evaluate.row_notes import MEMORY_BASELINES, msm_note, sling_notes  # noqa: F401 (re-exported)
@@ -329,7 +329,7 @@ def handoff_markdown(records: Sequence[EpisodeRecord], reference: str = "nue") -
     if not summaries:
         return ""
     ordered = {k: summaries[k] for k in order_methods(summaries)}
-    labels = {k: method_label(k) for k in ordered}
+    labels = {k: run_label(k, ordered) for k in ordered}
     text = f"{format_handoff_markdown(ordered, labels)}\n{HANDOFF_NOTES}\n"
     diffs = outcome_differences(records, reference=canonical_method(reference), method_of=key)
     if diffs:
@@ -339,7 +339,7 @@ def handoff_markdown(records: Sequence[EpisodeRecord], reference: str = "nue") -
         text += (f"\nPaired differences of the failure classes to {ref} (the share of episodes, {ref}'s minus the "
                  f"method's; below 0 = {ref} fails that way less often; 95% paired bootstrap over the episodes both "
                  "ran; a method's training seeds are pooled, seeds x episodes, as in the paired differences of SR):\n\n"
-                 f"{format_outcome_differences(diffs, labels, ref)}")
+                 f"{format_outcome_differences(diffs, {d.method: method_label(d.method) for d in diffs}, ref)}")
     return text
 
 

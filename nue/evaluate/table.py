@@ -108,11 +108,25 @@ def method_label(key: str) -> str:
 
 def order_methods(keys) -> list[str]:
     """Known methods in Table I order, then the current recipe's others (experts, controls) alphabetically, then
-    earlier recipes' rows (:func:`is_earlier_recipe`) alphabetically."""
-    keys = set(keys)
-    others = keys - set(_BY_KEY)
-    return ([m.key for m in METHODS if m.key in keys] + sorted(k for k in others if not is_earlier_recipe(k))
-            + sorted(k for k in others if is_earlier_recipe(k)))
+    earlier recipes' rows (:func:`is_earlier_recipe`) alphabetically; each method's training seeds' runs
+    (``<key>@s<k>``, :func:`split_seed`) follow it in seed order."""
+    runs: dict[str, list[tuple[int, str]]] = {}
+    for k in set(keys):
+        base, seed = split_seed(k)
+        runs.setdefault(base, []).append((seed, k))
+    others = set(runs) - set(_BY_KEY)
+    bases = ([m.key for m in METHODS if m.key in runs] + sorted(k for k in others if not is_earlier_recipe(k))
+             + sorted(k for k in others if is_earlier_recipe(k)))
+    return [k for b in bases for _, k in sorted(runs[b])]
+
+
+def run_label(key: str, keys) -> str:
+    """Row label of one training run in a table of runs: :func:`method_label`, with ``@s0`` on a seed-0 run when
+    ``keys`` also holds another seed's run of its method (``NUE (full) @s0`` beside ``NUE (full) @s1``)."""
+    base, seed = split_seed(key)
+    if seed == 0 and any(split_seed(k)[0] == base and split_seed(k)[1] > 0 for k in keys):
+        return f"{method_label(key)} {SEED_MARK}0"
+    return method_label(key)
 
 
 @dataclass(frozen=True)
