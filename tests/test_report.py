@@ -517,9 +517,15 @@ def test_results_md_with_seeds_has_the_seed_notes_and_a_single_seed_one_has_none
     seeded = RM.render_results_md(seeded_records(), {"command": "nue reproduce --recipe v7"})
     assert "| NUE (full) | 4 x 2 |" in seeded and "Training seeds (each run's totals):" in seeded
     assert R.SEED_NOTES in seeded and R.PAIRED_SEED_NOTES in seeded
-    curves = R.coverage_curves([rec(0, "easy", True, method=m, coverage=c)
-                                for m, c in (("nue", [1.0, 3.0]), ("nue@s1", [2.0, 5.0]), ("fr", [1.0, 1.0]))])
+    covered = [rec(0, "easy", True, method=m, coverage=c)
+               for m, c in (("nue", [1.0, 3.0]), ("nue@s1", [2.0, 5.0]), ("fr", [1.0, 1.0]),
+                            ("nue_v6", [9.0, 9.0]), ("nue_v6@s1", [9.0, 9.0]))]
+    curves = R.coverage_curves(covered)
     assert list(curves) == ["fr", "nue"] and curves["nue"].tolist() == [1.5, 4.0]  # the seeds' runs averaged
+    # earlier recipes' rows are left out (another seen-floor definition before 7a2b8f9), and the note says so
+    text = RM.render_results_md(covered, {"command": "nue reproduce --recipe v7"})
+    coverage = text.split("## Exploration coverage")[1].split("\n## ")[0]
+    assert R.COVERAGE_NOTE in coverage and "| NUE (full) | 4.0 |" in coverage and "nue_v6" not in coverage
     plain = RM.render_results_md(hand_records(), {"command": "nue reproduce --recipe v6"})
     assert "Training seeds" not in plain and "two-level" not in plain
 

@@ -16,7 +16,7 @@ from typing import Mapping, Sequence
 from nue.evaluate import coverage as cov
 from nue.evaluate.paper_claims import ablation_ordering_markdown, baselines_markdown
 from nue.evaluate.report import (
-    NOTES, handoff_markdown, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
+    COVERAGE_NOTE, NOTES, handoff_markdown, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
     format_markdown, method_label, paired_differences, paired_markdown, paper_table, seed_notes, unreachable_markdown,
 )
 from nue.evaluate.table import is_earlier_recipe  # noqa: F401  (re-exported)
@@ -52,7 +52,8 @@ def _comparison_parts(rows, paper, records: Sequence[EpisodeRecord], where: str)
         parts.append(f"Paired differences to NUE{where} (95% paired bootstrap):\n\n{paired_markdown(diffs)}")
     curves = coverage_curves(records)
     if curves:
-        parts.append(f"Exploration coverage{where} (mean seen floor area, m²):\n\n"
+        parts.append(f"Exploration coverage{where} (mean seen floor area, m²; earlier recipes left out, as in the "
+                     "main set's table):\n\n"
                      f"{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
     return parts
 
@@ -188,8 +189,8 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
                      f"interval excludes 0.\n\n{paired_markdown(diffs)}")
     curves = coverage_curves(records)
     if curves:
-        parts.append("## Exploration coverage (mean seen floor area, m²)\n\nEpisodes that ended keep their final "
-                     f"area.\n\n{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
+        parts.append(f"## Exploration coverage (mean seen floor area, m²)\n\n{COVERAGE_NOTE}\n\n"
+                     f"{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
     if records:
         parts.append(f"## Closed-loop diagnostics\n\n{closed_loop_markdown(records, task)}")
     handoff = handoff_markdown(records)
