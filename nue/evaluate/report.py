@@ -21,10 +21,9 @@ import re
 from pathlib import Path
 from typing import Mapping, Sequence
 
-import numpy as np
 from scipy.stats import kendalltau
 
-from nue.evaluate import coverage as cov
+from nue.evaluate.coverage import COVERAGE_NOTE, coverage_curves  # noqa: F401  (re-exported)
 from nue.evaluate.diagnose import DIAGNOSTICS_NOTES, format_record_diagnostics, record_diagnostics
 from nue.evaluate.metrics import unreachable_end
 from nue.evaluate.paired import (  # noqa: F401  (re-exported)
@@ -375,27 +374,6 @@ def write_report(records: Sequence[EpisodeRecord], out_dir, reference: bool = Tr
     paths["table.csv"].write_text(format_csv(rows, paper))
     paths["table.tex"].write_text(format_latex(rows, paper))
     return paths
-
-
-COVERAGE_NOTE = (
-    "Episodes that ended keep their final area. Earlier recipes' rows (`_v<N>`) are left out, as in the coverage "
-    "figure: the seen floor got a depth check in 7a2b8f9 (2026-12-05; floor behind a wall's foot no longer counts), "
-    "after the v6 run, so records made before it count more seen floor for the same path (about 10% on the geodesic "
-    "expert's first 47 val252 episodes: ratio 0.88-0.95, new to old) and compare only with each other."
-)
-"""The coverage tables' note: what counts and which rows are not comparable."""
-
-
-def coverage_curves(records: Sequence[EpisodeRecord]) -> dict[str, np.ndarray]:
-    """Mean seen-area-vs-step curve (m²) per method of the table (canonical names, in table order; earlier recipes'
-    rows left out, :data:`COVERAGE_NOTE`); a method's training seeds are one method, as in Table I (the mean over all
-    its seeds' episodes: with the same episodes per seed, the mean of the seeds' mean curves)."""
-    def key(r: EpisodeRecord) -> str:
-        return canonical_method(split_seed(r.method)[0])
-
-    current = [r for r in records if not is_earlier_recipe(r.method)]
-    keys = order_methods({key(r) for r in current})
-    return cov.mean_coverage_curves(current, keys, method_of=key)
 
 
 def ordering_markdown(rows: Sequence[TableRow], paper: Mapping) -> str:
