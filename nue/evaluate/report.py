@@ -32,7 +32,7 @@ from nue.evaluate.paired import (  # noqa: F401  (re-exported)
 from nue.evaluate.record_keys import OnDropped
 from nue.evaluate.stats import paired_bootstrap, seed_episode_bootstrap, wilson_interval  # noqa: F401  (re-exported)
 from nue.evaluate.table import (  # noqa: F401  (re-exported)
-    DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, is_earlier_recipe, method_label,
+    DIFFICULTIES, METHODS, Cell, TableRow, build_table, by_method, canonical_method, method_label,
     order_methods, run_label,
     paper_table, seed_run_name, split_seed,
 )

@@ -16,7 +16,7 @@ from typing import Mapping, Sequence
 from nue.evaluate import coverage as cov
 from nue.evaluate.paper_claims import ablation_ordering_markdown, baselines_markdown
 from nue.evaluate.report import (
-    COVERAGE_NOTE, NOTES, handoff_markdown, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
+    NOTES, handoff_markdown, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
     format_markdown, method_label, paired_differences, paired_markdown, paper_table, seed_notes, unreachable_markdown,
 )
 from nue.evaluate.table import is_earlier_recipe  # noqa: F401  (re-exported)
@@ -189,7 +189,7 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
                      f"interval excludes 0.\n\n{paired_markdown(diffs)}")
     curves = coverage_curves(records)
     if curves:
-        parts.append(f"## Exploration coverage (mean seen floor area, m²)\n\n{COVERAGE_NOTE}\n\n"
+        parts.append(f"## Exploration coverage (mean seen floor area, m²)\n\n{cov.COVERAGE_NOTE}\n\n"
                      f"{cov.format_coverage_markdown(curves, {k: method_label(k) for k in curves})}")
     if records:
         parts.append(f"## Closed-loop diagnostics\n\n{closed_loop_markdown(records, task)}")
