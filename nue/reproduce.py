@@ -295,6 +295,32 @@ def demonstrations_line(collected: list[CollectSummary]) -> str:
     return f"{episodes} episodes, {sum(c.steps for c in collected)} steps, expert SR {100 * sr:.1f}%"
 
 
+def run_meta(recipe: Recipe, folders: RunFolders) -> dict[str, str]:
+    """RESULTS.md's facts about a run, from its files: command, dates (started; the last stage marker's finish, or
+    now), commits (where it started; now), machine, recipe, main set, demonstrations and each finished stage's
+    wall-clock (``scripts/reproduce_publish.py`` copies the last two into the repository's RESULTS.meta.json)."""
+    walls = {s: stage_done(folders, s) for s in plan_stages(recipe) if s != "report"}
+    done = [m for m in walls.values() if m is not None]
+    collected = [m.summary for m in done if isinstance(m.summary, CollectSummary)]
+    stored = json.loads((folders.out / "recipe.json").read_text())
+    finished = max((m.finished for m in done), default=_now())  # "YYYY-MM-DD HH:MM UTC" sorts as text
+    main = recipe.eval_sets[0]
+    commit = git_commit()
+    return {
+        "command": f"nue reproduce --recipe {recipe.name} --out {folders.out}",
+        "date": f"{stored.get('started', '?')} - {finished}",
+        "commit": commit if stored.get("commit") in (None, commit) else f"started at {stored['commit']}, now {commit}",
+        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}",
+        "recipe": f"{recipe.summary()} (all values: {folders.out / 'recipe.json'})",
+        "episodes": f"`{main}`: {get_episode_set(main).description}",
+        "demonstrations": demonstrations_line(collected),
+        "stage wall-clock": "each stage's wall-clock in the call that finished it (a stage resumed across calls "
+                            "spent more; an evaluation's summed episode time follows it): "
+                            + "; ".join(f"{s} {format_duration(m.seconds)}{_episode_time(folders, s)}"
+                                        for s, m in walls.items() if m),
+    }
+
+
 def write_results(recipe: Recipe, folders: RunFolders) -> Path:
     """``OUT/report/<table>/`` for every table and ``OUT/RESULTS.md`` (the first set in full, then the others)."""
     tables = report_tables(recipe, folders)
@@ -306,19 +332,7 @@ def write_results(recipe: Recipe, folders: RunFolders) -> Path:
         write_coverage_figure(recs, folders.out / "report", f"explore_{name}.png",
                               f"Exploration benchmark from {name}'s starts")
     main = recipe.eval_sets[0]
-    walls = {s: stage_done(folders, s) for s in plan_stages(recipe) if s != "report"}
-    collected = [m.summary for s, m in walls.items() if s.partition("/")[0] == "collect" and m is not None]
-    started = json.loads((folders.out / "recipe.json").read_text()).get("started", "?")
-    meta = {
-        "command": f"nue reproduce --recipe {recipe.name} --out {folders.out}",
-        "date": f"{started} - {_now()}", "commit": git_commit(),
-        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}",
-        "recipe": f"{recipe.summary()} (all values: {folders.out / 'recipe.json'})",
-        "episodes": f"`{main}`: {get_episode_set(main).description}",
-        "demonstrations": demonstrations_line([c for c in collected if isinstance(c, CollectSummary)]),
-        "stage wall-clock": "; ".join(f"{s} {format_duration(m.seconds)}{_episode_time(folders, s)}"
-                                      for s, m in walls.items() if m),
-    }
+    meta = run_meta(recipe, folders)
     held_out = [s for s in held_out_sets() if s in tables]
     text = render_results_md(tables[main], meta, recipe.task, sets={k: v for k, v in tables.items() if k != main},
                              main_name=main, explore=explored, generalisation=main if held_out else "")

@@ -24,6 +24,9 @@
    go (the run's records carry their own hand-off), so no hand-off is recomputed.
 3. **Exploration.** ``results/explore_<set>.jsonl`` likewise from ``RUN/records/explore/<set>.jsonl`` (the references
    ``expert-explore`` and ``random`` are replaced like the experts).
+4. **Metadata.** ``RESULTS.meta.json``'s ``demonstrations`` and ``stage wall-clock`` come from the run's files
+   (:func:`nue.reproduce.run_meta`: its collections' markers; each stage's wall-clock and each evaluation's summed
+   episode time); the script lists the entries left to revise by hand (the command, the discussion, ...).
 
 Then regenerate the derived files and RESULTS.md with the commands the script prints. ``--root`` (default: the
 repository holding this script) may be a copy (a preview); ``--partial`` skips the check that the run finished and
@@ -259,6 +262,30 @@ def publish_checkpoints(root: Path, run: Path, shipped: list[str], previous: str
     return f"{folder}: {len(before)} earlier files {fate}; {len(shipped)} rows shipped, {size / 1e6:.1f} MB in all"
 
 
+META_FROM_RUN = ("demonstrations", "stage wall-clock")
+"""RESULTS.meta.json's entries the publish takes from the run's files (:func:`nue.reproduce.run_meta`); the others
+describe the run in words and are revised by hand."""
+
+
+def plan_meta(root: Path, run: Path, recipe) -> tuple[Path, dict, str]:
+    """RESULTS.meta.json after publishing (:data:`META_FROM_RUN` from the run, the rest as it was) and a line saying
+    what changed and what is left to revise by hand."""
+    from nue.reproduce import RunFolders, run_meta
+
+    path = root / "RESULTS.meta.json"
+    try:
+        meta = json.loads(path.read_text()) if path.exists() else {}
+    except ValueError as e:
+        raise Refused(path, f"not JSON ({e})") from None
+    if not isinstance(meta, dict):
+        raise Refused(path, "not a JSON object")
+    facts = run_meta(recipe, RunFolders(run, root / "data" / "scenes", root / "episodes"))
+    updated = {**meta, **{k: facts[k] for k in META_FROM_RUN}}
+    by_hand = ", ".join(k for k in updated if k not in META_FROM_RUN) or "none"
+    return path, updated, (f"{path}: {', '.join(META_FROM_RUN)} from the run's stage markers; revise by hand: "
+                           f"{by_hand}")
+
+
 def checkpoint_table(root: Path, run: Path, recipe, shipped: list[str]) -> str:
     """The markdown table of the shipped rows (needs the package: ``.venv/bin/python``)."""
     from nue.evaluate.metrics import summarize
@@ -333,10 +360,15 @@ def main(argv: list[str] | None = None) -> None:
             raise Refused(a.run / "stages", "the run has not finished (no report.json); --partial previews it")
         # every check before the first write
         planned, skipped = plan_records(a.root, a.run, recipe, previous, a.partial)
+        meta_path, meta, meta_line = plan_meta(a.root, a.run, recipe)
         print(publish_checkpoints(a.root, a.run, shipped, previous.name, a.previous_checkpoints == "keep"))
         for path, rows, line in planned:
             write_jsonl(path, rows)
             print(line)
+        tmp = meta_path.with_name(meta_path.name + ".tmp")
+        tmp.write_text(json.dumps(meta, indent=1, ensure_ascii=False) + "\n")
+        tmp.replace(meta_path)
+        print(meta_line)
         for s in skipped:
             print(f"{s}: no records in the run yet, left as it was (--partial)")
     except Refused as e:
@@ -351,7 +383,7 @@ def main(argv: list[str] | None = None) -> None:
 
     published = {s for s in recipe.eval_sets if (a.root / "results" / f"records_{s}.jsonl").exists()}
     held = " --generalisation val252" if set(held_out_sets()) & published else ""
-    print("next: update RESULTS.meta.json; then\n  nue report results/records_val252.jsonl --name val252 "
+    print("next: revise RESULTS.meta.json's other entries; then\n  nue report results/records_val252.jsonl --name val252 "
           f"--set val=results/records.jsonl {sets} {explore}{held} --out results/report --results-md RESULTS.md")
 
 

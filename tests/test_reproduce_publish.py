@@ -83,6 +83,10 @@ def setup(tmp_path):
            [r for m in ("nue", "nue@s1", "expert-explore", "random") for r in _rows(m, n=3)])
     (run / "stages").mkdir()
     (run / "stages" / "report.json").write_text("{}")
+    for stage in ("train__nue", "eval__val252"):  # two stages' real markers (50 min and 21 min)
+        shutil.copy(REPO / "results" / ("v12" if stage.startswith("train") else "reproduce") / "run" / "stages"
+                    / f"{stage}.json", run / "stages")
+    (root / "RESULTS.meta.json").write_text(json.dumps({"command": "v6's", "stage wall-clock": "v6's stages"}))
     return root, run
 
 
@@ -123,7 +127,14 @@ def test_a_finished_run_becomes_the_shipped_rows(setup, capsys):
     explore = _methods(root / "results" / "explore_val252.jsonl")
     assert explore == {"nue_v6": 3, "nue": 3, "nue@s1": 3, "expert-explore": 3, "random": 3}
 
+    meta = json.loads((root / "RESULTS.meta.json").read_text())
+    assert meta["command"] == "v6's"  # written by hand: kept for revising
+    walls = meta["stage wall-clock"]  # from the run's markers, in the plan's order, with each evaluation's records
+    assert walls.index("train/nue 50 min") < walls.index(f"eval/val252 21 min ({len(QUICK_ROWS) * 18 + 36} runs, ")
+    assert meta["demonstrations"].startswith("? episodes")  # the fixture's run has no collection marker
+
     out = capsys.readouterr().out
+    assert "revise by hand: command" in out
     assert "8 rows shipped" in out and "1 removed" not in out and "18 removed, copies elsewhere" in out
     assert "whose outcome differs from the earlier one: expert 15)" in out  # the old expert rows were made to differ
     # published twice: refused before anything changes
@@ -168,6 +179,11 @@ def test_refusals_name_the_file_and_change_nothing(setup, capsys):
     (run / "stages" / "report.json").unlink()
     assert _publish(root, run) == 2 and "has not finished" in capsys.readouterr().err
     (run / "stages" / "report.json").write_text("{}")
+    (root / "RESULTS.meta.json").write_text("[]")
+    before = _snapshot(root)
+    assert _publish(root, run) == 2 and "RESULTS.meta.json: not a JSON object" in capsys.readouterr().err
+    assert _snapshot(root) == before
+    (root / "RESULTS.meta.json").write_text("{}")
     # a row nobody can account for: not the previous recipe's, not an earlier one's, no copy elsewhere
     with (root / "results" / "records_val252.jsonl").open("a") as f:
         f.write(json.dumps(_rows("mystery", n=1)[0]) + "\n")
