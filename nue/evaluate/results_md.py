@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from nue.evaluate import coverage as cov
+from nue.evaluate.handoff_targets import handoff_targets_markdown
 from nue.evaluate.paper_claims import ablation_ordering_markdown, baselines_markdown
 from nue.evaluate.report import (
     NOTES, handoff_markdown, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
@@ -152,7 +153,9 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     further episode sets (name -> records), each given its own section (:func:`set_section_markdown`)
     before the discussion; ``main_name``: the main records' episode set (``val252``), as the pooled section names
     it (default "Table I's episodes"); ``explore``: the exploration benchmark's records per set of starts (a section
-    each, :func:`exploration_section_markdown`); ``generalisation``: a reference set's name (``val252``, the main
+    each, :func:`exploration_section_markdown`; also the hand-off targets' exploration ratio); after the sets'
+    sections, the paper's claims (:mod:`nue.evaluate.paper_claims`) and the hand-off targets
+    (:mod:`nue.evaluate.handoff_targets`) over every set; ``generalisation``: a reference set's name (``val252``, the main
     records or one of ``sets``): a section comparing it with every held-out set of ``sets``
     (:mod:`nue.evaluate.generalisation`; '' = none); ``held_out``: a further generalisation section (after it) from
     its own record files (:class:`HeldOutInputs`, ``RESULTS.generalisation.json``: models that are not Table
@@ -209,7 +212,8 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
             parts.append(pooled)
     # the paper's claims across every set (after the sets' sections: the main ones do not depend on the others)
     independent = _not_extended({main_name or MAIN_SET: records, **(sets or {})})
-    parts += [text for text in (ablation_ordering_markdown(independent), baselines_markdown(independent)) if text]
+    parts += [text for text in (ablation_ordering_markdown(independent), baselines_markdown(independent),
+                                handoff_targets_markdown(independent, explore)) if text]
     if generalisation:
         section = generalisation_section(generalisation, {main_name or MAIN_SET: records, **(sets or {})})
         if section:
