@@ -59,7 +59,7 @@ def test_each_target_s_verdict_follows_its_numbers():
     assert never[1:] == ["–", "–"]
     assert seen == ["2.00 [2.00, 2.00] (6 starts, 1 x 1 seeds): **met**", "–",
                     "1.20 [1.20, 1.20] (6 starts, 1 x 1 seeds): not met"]  # ratio 2 >= 1.3; 1.2 is not
-    assert sr == ["93.3% (95.0, 91.7): **met**", "83.3%", "–"]
+    assert sr == ["93.3% (95.0, 91.7) of 60: **met**", "83.3% of 60", "–"]
     # NUE - no f_u: seed mean (57 + 55) / 2 / 60 = 93.3% against 50%: +43.3 points, resolved
     assert no_fu[0].startswith("+43.3 points [") and no_fu[0].endswith("(60 episodes, 2 x 1 seeds): **met**")
     # NUE - FR: e055 0.5 - 1 and e056 0.5 - 0 cancel: +0.0 points, not met

@@ -125,12 +125,13 @@ def never_near_cell(records: Sequence[EpisodeRecord]) -> Cell | None:
 
 def sr_cell(records: Sequence[EpisodeRecord], name: str) -> Cell | None:
     nue = _runs(records, NUE)
-    if not nue:
+    keys = set.intersection(*(set(run) for run in nue.values())) if nue else set()
+    if not keys:
         return None
-    srs = [sum(bool(r.success) for r in run.values()) / len(run) for run in nue.values()]
+    srs = [sum(bool(run[k].success) for k in keys) / len(keys) for run in nue.values()]
     mean = sum(srs) / len(srs)
     text = f"{100 * mean:.1f}%" + (f" ({', '.join(f'{100 * s:.1f}' for s in srs)})" if len(srs) > 1 else "")
-    return Cell(text, mean >= SR_TARGET if name == SR_SET else None)
+    return Cell(f"{text} of {len(keys)}", mean >= SR_TARGET if name == SR_SET else None)
 
 
 def explore_cell(records: Sequence[EpisodeRecord]) -> Cell | None:
