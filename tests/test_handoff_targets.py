@@ -69,3 +69,10 @@ def test_each_target_s_verdict_follows_its_numbers():
 
 def test_nothing_to_say_without_nue():
     assert handoff_targets_markdown({"val252": _runs("fr", 30, 5)}) == ""
+
+
+def test_nue_alone_compares_nothing_and_one_seed_has_no_two_level_wording():
+    assert handoff_targets_markdown({"val252": _runs("nue", 55, 3)}) == ""  # its SR alone: no section
+    text = handoff_targets_markdown({"val252": _runs("nue", 55, 3) + _runs("abl_at_cbam", 30, 10)})
+    assert "two-level" not in text and "several training seeds" not in text and "across the 1 paired SR cells" in text
+    assert "| NUE's SR at least 90% on `val252` (seed mean; each seed's) | 91.7% of 60: **met** |" in text

@@ -182,18 +182,22 @@ def handoff_targets_markdown(sets: Mapping[str, Sequence[EpisodeRecord]],
     ]
     grid = [(label, [cell_of(n) for n in names]) for label, cell_of in rows]
     grid = [(label, cells) for label, cells in grid if any(c is not None for c in cells)]
-    if not grid:
-        return ""
+    if not any(c is not None and c.met is not None for label, cells in grid if label != rows[3][0] for c in cells):
+        return ""  # no comparison (NUE's SR alone, near misses without the earlier recipe's): nothing to check
     verdicts = [c.met for _, cells in grid for c in cells if c is not None and c.met is not None]
     table = "\n".join(f"| {label} | " + " | ".join("–" if c is None else c.markdown() for c in cells) + " |"
                       for label, cells in grid)
+    seeded = any(len(_runs(recs, m)) > 1 for recs in [*sets.values(), *explore.values()] for m in (NUE, NO_FU, FR))
+    cells = sum(len(r) for r in diffs.values())
     return ("## The hand-off targets (issue 37)\n\n"
             "What the recipe's NUE was built to reach (`nue.evaluate.handoff_targets`), on every set where the rows "
-            "ran: counts are failures of one training-seed run over the episodes every run compared ran (with several "
-            "seeds, their mean and each seed's in brackets); the no-f_u ablation is f_u=off AT=on CBAM=on; intervals "
-            "are 95%, seed-pooled two-level bootstraps (seeds, then episodes or starts; 10,000 resamples, seed 0), "
-            "and *not after Holm* marks a lead that does not survive a Holm-Bonferroni correction across the "
-            f"{sum(len(r) for r in diffs.values())} paired SR cells of this table. "
-            f"Met: {sum(verdicts)} of {len(verdicts)}.\n\n"
+            "ran: counts are failures of a run over the episodes every run compared ran"
+            + (" (with several training seeds, their mean and each seed's in brackets)" if seeded else "")
+            + "; the no-f_u ablation is f_u=off AT=on CBAM=on; intervals are 95% bootstraps over the episodes or starts"
+            + (" (with several seeds on either side two-level: seeds, then episodes or starts)" if seeded else "")
+            + ", 10,000 resamples, seed 0"
+            + (f"; *not after Holm* marks a lead that does not survive a Holm-Bonferroni correction across the {cells} "
+               "paired SR cells of this table" if cells else "")
+            + f". Met: {sum(verdicts)} of {len(verdicts)}.\n\n"
             "| target | " + " | ".join(f"`{n}`" for n in names) + " |\n|" + "---|" * (len(names) + 1) + "\n"
             + table + "\n")
