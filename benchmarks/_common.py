@@ -9,6 +9,8 @@ import subprocess
 import time
 from pathlib import Path
 
+from nue.train.hardware import cpu_model
+
 RESULTS = Path(__file__).parent / "results"
 CACHE = Path(__file__).resolve().parent.parent / "outputs" / "bench_scenes"
 
@@ -18,17 +20,6 @@ def _git(*args: str) -> str:
         return subprocess.run(["git", *args], capture_output=True, text=True, cwd=Path(__file__).parent).stdout.strip()
     except OSError:
         return ""
-
-
-def cpu_model() -> str:
-    """The CPU's model name from ``/proc/cpuinfo`` ('' where there is none): numbers from two machines differ."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return ""
 
 
 def machine() -> dict:

@@ -34,9 +34,9 @@ Test hook: ``NUE_FAIL_AFTER_STAGE=k`` stops the run after k stages finished in t
 from __future__ import annotations
 
 import json
-import os
 import platform
 import time
+from collections import Counter
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Sequence
@@ -60,6 +60,7 @@ from nue.reproduce_train import TrainJob, collect_config, collect_configs, run_t
 from nue.scene.generator import SPLITS, ensure_house
 from nue.sim.episode_sets import get_episode_set, held_out_sets
 from nue.train.collect import CollectSummary, collect
+from nue.train.hardware import machine_summary
 from nue.viz.coverage import write_coverage_figure
 
 FORMAT = "nue-reproduce/1"
@@ -221,7 +222,7 @@ def _reproduce(recipe: Recipe, folders: RunFolders, workers, ray_address, device
     kept = [s for s in stages if done[s] is not None]
 
     def finish(stage: str, seconds: float, summary: StageSummary) -> None:
-        _write_json(folders.marker(stage), StageMarker(stage, seconds, _now(), summary).to_dict())
+        _write_json(folders.marker(stage), StageMarker(stage, seconds, _now(), summary, machine_summary()).to_dict())
         ran.append(stage)
         echo(f"  {stage}: done in {format_duration(seconds)}")
         fail_point(FAIL_AFTER_STAGE_ENV, len(ran), f"stage {stage}")
@@ -297,8 +298,9 @@ def demonstrations_line(collected: list[CollectSummary]) -> str:
 
 def run_meta(recipe: Recipe, folders: RunFolders) -> dict[str, str]:
     """RESULTS.md's facts about a run, from its files: command, dates (started; the last stage marker's finish, or
-    now), commits (where it started; now), machine, recipe, main set, demonstrations and each finished stage's
-    wall-clock (``scripts/reproduce_publish.py`` copies the last two into the repository's RESULTS.meta.json)."""
+    now), commits (where it started; now), machine, recipe, main set, demonstrations, each finished stage's
+    wall-clock and where the stages ran (``scripts/reproduce_publish.py`` copies the last three into the repository's
+    RESULTS.meta.json)."""
     walls = {s: stage_done(folders, s) for s in plan_stages(recipe) if s != "report"}
     done = [m for m in walls.values() if m is not None]
     collected = [m.summary for m in done if isinstance(m.summary, CollectSummary)]
@@ -310,7 +312,10 @@ def run_meta(recipe: Recipe, folders: RunFolders) -> dict[str, str]:
         "command": f"nue reproduce --recipe {recipe.name} --out {folders.out}",
         "date": f"{stored.get('started', '?')} - {finished}",
         "commit": commit if stored.get("commit") in (None, commit) else f"started at {stored['commit']}, now {commit}",
-        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}",
+        "machine": f"{machine_summary()}, Python {platform.python_version()} (the call that wrote this)",
+        "stage machines": "where the call that finished each stage ran, stages: " + "; ".join(
+            f"{m or 'not recorded (markers written before the field)'} {n}"
+            for m, n in Counter(m.machine for m in done).most_common()),
         "recipe": f"{recipe.summary()} (all values: {folders.out / 'recipe.json'})",
         "episodes": f"`{main}`: {get_episode_set(main).description}",
         "demonstrations": demonstrations_line(collected),

@@ -140,16 +140,19 @@ class StageMarker:
     """When it finished (``YYYY-MM-DD HH:MM UTC``)."""
     summary: StageSummary
     """What it made (the class of its kind of stage)."""
+    machine: str = ""
+    """Where the call that finished it ran (:func:`nue.train.hardware.machine_summary`); '' in markers written before
+    this field."""
 
     def to_dict(self) -> dict:
         return {"stage": self.stage, "seconds": self.seconds, "finished": self.finished,
-                "summary": self.summary.to_dict()}
+                "summary": self.summary.to_dict(), **({"machine": self.machine} if self.machine else {})}
 
     @classmethod
     def from_dict(cls, d: dict) -> StageMarker:
         stage = d["stage"]
         return cls(stage=stage, seconds=d["seconds"], finished=d["finished"],
-                   summary=summary_type(stage).from_dict(d["summary"]))
+                   summary=summary_type(stage).from_dict(d["summary"]), machine=str(d.get("machine", "")))
 
     @classmethod
     def read(cls, path: Path) -> StageMarker:

@@ -24,9 +24,10 @@
    go (the run's records carry their own hand-off), so no hand-off is recomputed.
 3. **Exploration.** ``results/explore_<set>.jsonl`` likewise from ``RUN/records/explore/<set>.jsonl`` (the references
    ``expert-explore`` and ``random`` are replaced like the experts).
-4. **Metadata.** ``RESULTS.meta.json``'s ``demonstrations`` and ``stage wall-clock`` come from the run's files
-   (:func:`nue.reproduce.run_meta`: its collections' markers; each stage's wall-clock and each evaluation's summed
-   episode time); the script lists the entries left to revise by hand (the command, the discussion, ...).
+4. **Metadata.** ``RESULTS.meta.json``'s ``demonstrations``, ``stage wall-clock`` and ``stage machines`` come from
+   the run's files (:func:`nue.reproduce.run_meta`: its collections' markers; each stage's wall-clock, each
+   evaluation's summed episode time, where each stage finished); the script lists the entries left to revise by hand
+   (the command, the discussion, ...).
 
 Then regenerate the derived files and RESULTS.md with the commands the script prints. ``--root`` (default: the
 repository holding this script) may be a copy (a preview); ``--partial`` skips the check that the run finished and
@@ -262,7 +263,7 @@ def publish_checkpoints(root: Path, run: Path, shipped: list[str], previous: str
     return f"{folder}: {len(before)} earlier files {fate}; {len(shipped)} rows shipped, {size / 1e6:.1f} MB in all"
 
 
-META_FROM_RUN = ("demonstrations", "stage wall-clock")
+META_FROM_RUN = ("demonstrations", "stage wall-clock", "stage machines")
 """RESULTS.meta.json's entries the publish takes from the run's files (:func:`nue.reproduce.run_meta`); the others
 describe the run in words and are revised by hand."""
 

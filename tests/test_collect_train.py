@@ -262,6 +262,13 @@ def test_native_bf16_is_read_from_the_cpu_flags_not_from_onednn():
     assert not cpu_has_native_bf16("flags : avx512f avx512bf16x")  # a whole flag, not a substring
 
 
+def test_the_cpu_model_is_read_from_cpuinfo():
+    from nue.train.hardware import cpu_model
+
+    text = "processor\t: 0\nvendor_id\t: AuthenticAMD\nmodel name\t: AMD EPYC 7B13\nflags\t\t: fpu\n"
+    assert cpu_model(text) == "AMD EPYC 7B13" and cpu_model("processor : 0\n") == ""
+
+
 def test_a_non_finite_loss_stops_training_with_one_line(demos, tmp_path):
     from nue.errors import DataError
     from nue.train.bc import TrainConfig, train

@@ -2,6 +2,7 @@
 the JSON forms that ``summary.json``, ``dagger.json`` and the stage markers held when they were plain dicts."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -53,6 +54,8 @@ def test_the_committed_reproduce_markers_read_typed_and_write_back_byte_for_byte
         kinds.add(type(m.summary))
         assert _marker_text(m.to_dict()) == f.read_text(), f.name
     assert kinds == {HousesSummary, CollectSummary, TrainRunSummary, EvalStageSummary, ReportSummary}
+    assert m.machine == ""  # written before markers said where they ran; a new one does, and reads back
+    assert StageMarker.from_dict(replace(m, machine="AMD EPYC, 2 CPUs").to_dict()).machine == "AMD EPYC, 2 CPUs"
     nue = StageMarker.read(REPO / "results" / "reproduce" / "run" / "stages" / "train__nue.json")
     assert nue.train_run().best == "runs/reproduce/runs/nue/best.pt" and nue.train_run().steps == 4000
     assert nue.train_run().model is None and nue.train_run().rounds is None  # written before model/seed were recorded

@@ -99,6 +99,9 @@ def test_quick_run_prints_its_estimate_and_reaches_results(run):
     # "Table I's episodes"); in a full run val lies inside val252 and the section is "`val252` + `val_plain`"
     assert "## Pooled: `val` + `val_plain`\n" in results
     assert "## Generalisation to held-out styles\n" in results  # val_plain is a held-out style family
+    from nue.train.hardware import machine_summary  # each marker says where its stage finished
+
+    assert f"| stage machines | where the call that finished each stage ran, stages: {machine_summary()} " in results
     # each evaluation stage's runs counted from its records (its marker times only the call that finished it)
     for name, recs in records.items():
         assert f"eval/{name} " in results and f" ({len(recs)} run" in results.split(f"eval/{name} ")[1].split(";")[0]

@@ -132,6 +132,7 @@ def test_a_finished_run_becomes_the_shipped_rows(setup, capsys):
     walls = meta["stage wall-clock"]  # from the run's markers, in the plan's order, with each evaluation's records
     assert walls.index("train/nue 50 min") < walls.index(f"eval/val252 21 min ({len(QUICK_ROWS) * 18 + 36} runs, ")
     assert meta["demonstrations"].startswith("? episodes")  # the fixture's run has no collection marker
+    assert meta["stage machines"].endswith("not recorded (markers written before the field) 2")  # older markers
 
     out = capsys.readouterr().out
     assert "revise by hand: command" in out

@@ -41,6 +41,26 @@ def cpu_has_native_bf16(cpuinfo: str | None = None) -> bool:
     return "avx512_bf16" in flags or "amx_bf16" in flags
 
 
+def cpu_model(cpuinfo: str | None = None) -> str:
+    """The CPU's model name from ``/proc/cpuinfo`` (or ``cpuinfo``, its text); '' where there is none."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return ""
+    for line in cpuinfo.splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return ""
+
+
+def machine_summary() -> str:
+    """This machine in a few words for run markers and RESULTS.md: CPU model (or the architecture) and CPU count."""
+    import platform
+
+    return f"{cpu_model() or platform.machine()}, {os.cpu_count()} CPUs"
+
+
 def check_compile(device: torch.device) -> None:
     """Refuse ``compile`` where torch.compile's inductor cannot build kernels: no C++ compiler (CPU), no Triton
     (CUDA)."""
