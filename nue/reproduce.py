@@ -314,8 +314,8 @@ def run_meta(recipe: Recipe, folders: RunFolders) -> dict[str, str]:
         "commit": commit if stored.get("commit") in (None, commit) else f"started at {stored['commit']}, now {commit}",
         "machine": f"{machine_summary()}, Python {platform.python_version()} (the call that wrote this)",
         "stage machines": "where the call that finished each stage ran, stages: " + "; ".join(
-            f"{m or 'not recorded (markers written before the field)'} {n}"
-            for m, n in Counter(m.machine for m in done).most_common()),
+            f"{where or 'not recorded (markers written before the field)'} {n}"
+            for where, n in Counter(d.machine for d in done).most_common()),
         "recipe": f"{recipe.summary()} (all values: {folders.out / 'recipe.json'})",
         "episodes": f"`{main}`: {get_episode_set(main).description}",
         "demonstrations": demonstrations_line(collected),
