@@ -149,7 +149,8 @@ def explore_cell(records: Sequence[EpisodeRecord]) -> Cell | None:
 def handoff_targets_markdown(sets: Mapping[str, Sequence[EpisodeRecord]],
                              explore: Mapping[str, Sequence[EpisodeRecord]] | None = None) -> str:
     """RESULTS.md's section on the hand-off targets over ``sets`` (name -> goal-episode records) and ``explore``
-    (name of the set of starts -> exploration benchmark records); '' when NUE ran on none of them."""
+    (name of the set of starts -> exploration benchmark records); '' when no target compares NUE with anything (its
+    SR alone, or its near misses without the earlier recipe's)."""
     from nue.evaluate.generalisation import pair_differences, pairs_holm
 
     explore = explore or {}
