@@ -1,21 +1,23 @@
 """The text of RESULTS.md, a pure function of episode records and metadata: the main episode set's Table I
 next to the paper, its ordering, the earlier recipes' rows, paired differences, coverage and closed-loop diagnostics,
 then one section per further episode set (``results/records_<set>.jsonl``), the further sets pooled, the paper's two
-claims (ablation ordering, NUE ahead of every baseline) step by step on every set, the generalisation to held-out
-styles, then the discussion.
+claims (ablation ordering, NUE ahead of every baseline) step by step on every set, the hand-off targets, the
+generalisation to held-out styles, Table I's recipe trained again (when the generalisation manifest names replicates),
+then the discussion.
 The tables themselves are :mod:`nue.evaluate.report`'s. A method trained with several seeds (runs ``<model>@s<k>``) is
 one row of seed means in each Table I, and its paired differences pool seeds x episodes (:mod:`nue.evaluate.paired`);
 the notes on seeds appear only then, so a table of single runs reads as before."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Sequence
 
 from nue.evaluate import coverage as cov
 from nue.evaluate.handoff_targets import handoff_targets_markdown
 from nue.evaluate.paper_claims import ablation_ordering_markdown, baselines_markdown
+from nue.evaluate.replicate import replicate_section
 from nue.evaluate.report import (
     NOTES, handoff_markdown, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
     format_markdown, method_label, paired_differences, paired_markdown, paper_table, seed_notes, unreachable_markdown,
@@ -159,7 +161,8 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     records or one of ``sets``): a section comparing it with every held-out set of ``sets``
     (:mod:`nue.evaluate.generalisation`; '' = none); ``held_out``: a further generalisation section (after it) from
     its own record files (:class:`HeldOutInputs`, ``RESULTS.generalisation.json``: models that are not Table
-    I's). Same inputs give the same bytes (the bootstrap is seeded).
+    I's), and with its ``replicates`` a section comparing Table I's runs with another training of the same recipe
+    (:mod:`nue.evaluate.replicate`). Same inputs give the same bytes (the bootstrap is seeded).
     """
     current = [r for r in records if not is_earlier_recipe(r.method)]
     earlier = [r for r in records if is_earlier_recipe(r.method)]
@@ -223,6 +226,11 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
                                          labels=held_out.labels, about=held_out.about, title=held_out.title)
         if section:
             parts.append(section)
+        if held_out.replicates:
+            section = replicate_section({main_name or MAIN_SET: records, **(sets or {})}, held_out.sets,
+                                        held_out.replicates, about=held_out.replicate_about)
+            if section:
+                parts.append(section)
     if meta.get("discussion"):
         parts.append(f"## Discussion\n\n{meta['discussion']}\n")
     return "\n".join(parts)
@@ -298,12 +306,18 @@ class HeldOutInputs:
     """The section's first paragraph: what the rows are and where their records come from."""
     title: str = GENERALISATION_TITLE
     """The section's title."""
+    replicates: dict[str, str] = field(default_factory=dict)
+    """Table I's method key -> the key of a run of the same recipe among these records (``nue`` ->
+    ``nue_gru_lean_mix``): a section compares the two (:mod:`nue.evaluate.replicate`); empty = none."""
+    replicate_about: str = ""
+    """That section's first paragraph: how the replicate was made."""
 
 
 HELD_OUT_FILE = "generalisation.json"
 """Suffix of the generalisation manifest beside a RESULTS.md: ``RESULTS.generalisation.json``. Its keys: ``reference``
 (a set name), ``sets`` (set name -> record files, relative to the manifest's folder), ``pairs`` (list of [a, b]),
-``labels`` (method key -> row name), ``about`` (text) and ``title`` (optional, the section's title)."""
+``labels`` (method key -> row name), ``about`` (text), ``title`` (optional, the section's title), and optionally
+``replicates`` (Table I's method key -> a listed method key trained with Table I's recipe) with ``replicate about``."""
 
 
 def load_held_out(path: Path) -> HeldOutInputs:
@@ -324,6 +338,8 @@ def load_held_out(path: Path) -> HeldOutInputs:
         files = {str(k): [Path(path).parent / str(f) for f in v] for k, v in dict(raw["sets"]).items()}
         pairs = tuple((str(a), str(b)) for a, b in raw.get("pairs", []))
         labels = {str(k): str(v) for k, v in dict(raw.get("labels", {})).items()}
+        replicates = {str(k): str(v) for k, v in dict(raw.get("replicates", {})).items()}
+        replicate_about = str(raw.get("replicate about", ""))
     except (KeyError, TypeError, ValueError) as exc:
         raise DataError(path, f"expected keys reference, sets {{name: [files]}}, pairs [[a, b]], labels, about ({exc!r})") from None
     if reference not in files:
@@ -331,7 +347,15 @@ def load_held_out(path: Path) -> HeldOutInputs:
     missing = [str(f) for fs in files.values() for f in fs if not f.is_file()]
     if missing:
         raise DataError(path, f"record file(s) not found: {', '.join(missing)}")
-    return HeldOutInputs(reference, {k: load_records(*v) for k, v in files.items()}, pairs, labels, about, title)
+    sets = {k: load_records(*v) for k, v in files.items()}
+    if replicates:
+        from nue.evaluate.table import canonical_method, split_seed
+
+        listed = {canonical_method(split_seed(r.method)[0]) for recs in sets.values() for r in recs}
+        unknown = [v for v in replicates.values() if canonical_method(v) not in listed]
+        if unknown:
+            raise DataError(path, f"replicates name method(s) none of its record files holds: {', '.join(unknown)}")
+    return HeldOutInputs(reference, sets, pairs, labels, about, title, replicates, replicate_about)
 
 
 def committed_held_out(root) -> HeldOutInputs | None:
