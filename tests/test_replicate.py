@@ -78,6 +78,9 @@ def test_results_md_section_from_the_manifest(tmp_path):
     section = text[text.index(f"## {REPLICATE_TITLE}"):]
     assert section.startswith(f"## {REPLICATE_TITLE}\n\nTrained again on another CPU.\n\nSR of each model")
     assert "| NUE (full) − FR, both, pooled | +62.5 [" in section and section.index("## Discussion") > 0
+    # Table I's own comparison has the interval of the section on the baselines (the same resamples)
+    claimed = _row(text, "| NUE (full) − FR |").split(" | ")[1].split(" (")[0]
+    assert _row(section, "| NUE (full) − FR, Table I's runs |").split(" | ")[1].split(" (")[0] == claimed
     manifest.write_text(json.dumps({**base, "replicates": {"nue": "nue_mxi"}}))
     with pytest.raises(DataError, match="nue_mxi"):
         load_held_out(manifest)

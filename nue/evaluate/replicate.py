@@ -46,12 +46,11 @@ def _seed_count(records: Sequence[EpisodeRecord]) -> int:
     return len({split_seed(r.method)[1] for r in records})
 
 
-def _diff(d: PairedDiff | None, negate: bool = False) -> str:
+def _diff(d: PairedDiff | None) -> str:
     if d is None:
         return "–"
-    mean, lo, hi = (-d.mean, -d.hi, -d.lo) if negate else (d.mean, d.lo, d.hi)
     mark = " resolved" if d.resolved else ""
-    return f"{100 * mean:+.1f} [{100 * lo:+.1f}, {100 * hi:+.1f}] ({d.n_pairs}, {d.seeds} x {d.reference_seeds}){mark}"
+    return f"{100 * d.mean:+.1f} [{100 * d.lo:+.1f}, {100 * d.hi:+.1f}] ({d.n_pairs}, {d.seeds} x {d.reference_seeds}){mark}"
 
 
 def _common(*groups: Sequence[EpisodeRecord]) -> set[tuple[str, str]]:
@@ -103,8 +102,8 @@ def replicate_markdown(table_sets: Mapping[str, Sequence[EpisodeRecord]],
             pooled = [r for m in (ref, k) for r in own[m] + _renamed(rep[m], m, offset=_seed_count(own[m]))]
             tagged = [r for m in (ref, k) for r in _renamed(rep[m], m)]
             for row, recs in zip(rows, (own[ref] + own[k], tagged, pooled)):
-                # pair_differences gives k - ref; the table shows ref - k
-                rows[row].append(_diff(pair_differences({n: recs}, [(k, ref)]).get((k, ref), {}).get(n), negate=True))
+                # ref - k as the other sections compute it (the same resamples, so the same interval)
+                rows[row].append(_diff(pair_differences({n: recs}, [(ref, k)]).get((ref, k), {}).get(n)))
         cmp_lines += [f"| {label(ref)} − {label(k)}, {row} | " + " | ".join(cells) + " |" for row, cells in rows.items()]
     return ("SR of each model in Table I's runs and in the replicate (seed means over the episodes every run of both "
             "ran; runs in brackets), and paired "
