@@ -49,3 +49,23 @@ def test_nue_against_every_baseline_names_where_it_is_ahead_or_behind():
     assert "- `b`: NUE ahead of 1 of 1 baselines (FR)." in text
     assert "| NUE (full) − Nav-A3C | +3.3 [" in text and "SLING + NUE" not in text.split("\n\n", 2)[2]
     assert baselines_markdown({"c": _runs("nue", 10)}) == ""
+
+
+def test_controls_say_reads_its_maps_and_uses_uncertainty_only_where_resolved():
+    from nue.evaluate.paper_claims import controls_markdown
+
+    # set a: NUE 50/60 and (seed 1) 40/60, mean 75%; swapped maps 10/60 for both seeds: +58.3 points; no f_u 45/60: 0
+    a = _runs("nue", 50) + _runs("nue@s1", 40) + _runs("nue+swap", 10) + _runs("nue@s1+swap", 10) \
+        + _runs("abl_at_cbam", 45) + _runs("fr", 0)  # FR is no control
+    b = _runs("nue", 40) + _runs("abl_at_cbam", 0)  # set b: no swap run; f_u off 0/60
+    text = controls_markdown({"a": a, "b": b})
+    assert "- `a`: reads its maps: shown (NUE (full) − nue+swap +58.3 points [" in text
+    assert "; uses uncertainty: not shown (NUE (full) − f_u=off AT=on CBAM=on +0.0 points [" in text
+    assert "- `b`: uses uncertainty: shown (NUE (full) − f_u=off AT=on CBAM=on +66.7 points [" in text
+    assert "reads its maps: shown" not in text.split("- `b`")[1] and "FR" not in text
+    assert "(60, 2 x 2)" in text  # both seeds of NUE against both of the control
+    assert controls_markdown({"c": _runs("nue", 10) + _runs("fr", 5)}) == ""
+    # a lead whose interval excludes 0 but not after Holm across the table's cells is said so
+    close = _runs("nue", 40) + _runs("nue+swap", 36)  # +6.7 [+1.7, +13.3], p 0.03 > 0.05 / 2
+    assert "reads its maps: not shown after Holm (NUE (full) − nue+swap +6.7 points [+" in controls_markdown(
+        {"a": a, "b": b, "c": close})

@@ -9,6 +9,9 @@ survives a Holm-Bonferroni correction across all the steps and sets of its table
    step of the ordering.
 2. NUE ahead of every baseline: FR, Nav-A3C, the memory baselines VGM and NRNS, and SLING's last mile around FR and
    Nav-A3C (MSM has no row: docs/msm.md).
+
+Beside them, what NUE's two controls say (:func:`controls_markdown`): a lead over the swapped-maps control
+(``nue+swap``) that NUE reads its maps, and only a lead over the no-f_u ablation that it uses uncertainty.
 """
 
 from __future__ import annotations
@@ -92,3 +95,40 @@ def baselines_markdown(sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
             "mile around FR and Nav-A3C (MSM has no row: docs/msm.md). NUE is ahead (or behind) on a set when the "
             "interval excludes 0 on that side and survives the Holm correction across the table's cells.\n\n"
             + pairs_markdown(sets, pairs, diffs=diffs) + "\n" + "\n".join(lines) + "\n")
+
+
+SWAPPED = "nue+swap"
+"""NUE fed the maps of another episode of the same house (the swapped-maps control, every training seed)."""
+NO_FU = SINGLE[0][0]
+"""The single ablation without f_u (NUE without its uncertainty branch)."""
+CONTROLS = ((FULL, SWAPPED, "reads its maps"), (FULL, NO_FU, "uses uncertainty"))
+"""The two controls ``(better, control, what a resolved lead says)``; nothing else earns either phrase."""
+
+
+def controls_markdown(sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
+    """RESULTS.md's section on what NUE's lead over its two controls says, per set: over the swapped-maps control
+    that it *reads its maps*, over the no-f_u ablation that it *uses uncertainty*; '' when neither ran beside NUE."""
+    pairs = [(a, b) for a, b, _ in CONTROLS]
+    diffs = pair_differences(sets, pairs)
+    if not diffs:
+        return ""
+    rejected = pairs_holm(diffs)
+    lines = []
+    for name in sets:
+        said = []
+        for a, b, phrase in CONTROLS:
+            d = diffs.get((a, b), {}).get(name)
+            if d is None:
+                continue
+            shown = "not shown" if d.lo <= 0 else "shown" if rejected[((a, b), name)] else "not shown after Holm"
+            said.append(f"{phrase}: {shown} ({method_label(a)} − {method_label(b)} "
+                        f"{100 * d.mean:+.1f} points [{100 * d.lo:+.1f}, {100 * d.hi:+.1f}])")
+        if said:
+            lines.append(f"- `{name}`: " + "; ".join(said) + ".")
+    return ("## What NUE's controls say: it reads its maps, it uses uncertainty\n\n"
+            "Two controls, each NUE with one thing taken away. The swapped-maps control (`nue+swap`, every training "
+            "seed) is NUE fed the memory maps recorded along the expert's run of another episode of the same house: a "
+            "lead of NUE over it says that NUE *reads its maps*, not what in them it uses. The no-f_u ablation "
+            "(f_u=off AT=on CBAM=on) is NUE without its uncertainty branch: only a lead over it says that NUE *uses "
+            "uncertainty*. Each is shown on a set when the interval lies above 0 and survives the Holm correction "
+            "across the table's cells.\n\n" + pairs_markdown(sets, pairs, diffs=diffs) + "\n" + "\n".join(lines) + "\n")

@@ -1,7 +1,8 @@
 """The text of RESULTS.md, a pure function of episode records and metadata: the main episode set's Table I
 next to the paper, its ordering, the earlier recipes' rows, paired differences, coverage and closed-loop diagnostics,
 then one section per further episode set (``results/records_<set>.jsonl``), the further sets pooled, the paper's two
-claims (ablation ordering, NUE ahead of every baseline) step by step on every set, the hand-off targets, the
+claims (ablation ordering, NUE ahead of every baseline) step by step on every set, what NUE's controls say (it reads
+its maps, it uses uncertainty), the hand-off targets, the
 generalisation to held-out styles, Table I's recipe trained again (when the generalisation manifest names replicates),
 then the discussion.
 The tables themselves are :mod:`nue.evaluate.report`'s. A method trained with several seeds (runs ``<model>@s<k>``) is
@@ -16,7 +17,7 @@ from typing import Mapping, Sequence
 
 from nue.evaluate import coverage as cov
 from nue.evaluate.handoff_targets import handoff_targets_markdown
-from nue.evaluate.paper_claims import ablation_ordering_markdown, baselines_markdown
+from nue.evaluate.paper_claims import ablation_ordering_markdown, baselines_markdown, controls_markdown
 from nue.evaluate.replicate import replicate_section
 from nue.evaluate.report import (
     NOTES, handoff_markdown, ordering_markdown, build_table, canonical_method, closed_loop_markdown, coverage_curves, format_counts_markdown,
@@ -216,7 +217,7 @@ def render_results_md(records: Sequence[EpisodeRecord], meta: Mapping[str, objec
     # the paper's claims across every set (after the sets' sections: the main ones do not depend on the others)
     independent = _not_extended({main_name or MAIN_SET: records, **(sets or {})})
     parts += [text for text in (ablation_ordering_markdown(independent), baselines_markdown(independent),
-                                handoff_targets_markdown(independent, explore)) if text]
+                                controls_markdown(independent), handoff_targets_markdown(independent, explore)) if text]
     if generalisation:
         section = generalisation_section(generalisation, {main_name or MAIN_SET: records, **(sets or {})})
         if section:
