@@ -30,11 +30,17 @@ STEPS = tuple((FULL, a) for a, _ in SINGLE) + tuple((a, ALL_OFF) for a, _ in SIN
 """The ordering's six steps ``(better, worse)``: full over each single ablation, each single ablation over all-off."""
 
 
+def _compared(sets: Mapping[str, Sequence[EpisodeRecord]], pairs):
+    """``(diffs, rejected)``: the paired differences of ``pairs`` on every set where both rows ran, and per
+    ``(pair, set)`` whether "no difference" is rejected after Holm across them all."""
+    diffs = pair_differences(sets, pairs)
+    return diffs, pairs_holm(diffs)
+
+
 def step_verdicts(sets: Mapping[str, Sequence[EpisodeRecord]]):
     """``(diffs, holds)``: :func:`~nue.evaluate.generalisation.pair_differences` of the :data:`STEPS` on ``sets``, and
     per ``(step, set)`` where both rows ran whether the step holds (interval above 0, and after Holm)."""
-    diffs = pair_differences(sets, STEPS)
-    rejected = pairs_holm(diffs)
+    diffs, rejected = _compared(sets, STEPS)
     return diffs, {(step, name): bool(d.lo > 0 and rejected[(step, name)]) for step, row in diffs.items()
                    for name, d in row.items()}
 
@@ -76,10 +82,9 @@ BASELINES = ("fr", "nav_a3c", "vgm", "nrns", "sling+fr", "sling+nav_a3c")
 def baselines_markdown(sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
     """RESULTS.md's section on NUE against every baseline over ``sets``; '' when NUE and no baseline ran together."""
     pairs = [(FULL, b) for b in BASELINES]
-    diffs = pair_differences(sets, pairs)
+    diffs, rejected = _compared(sets, pairs)
     if not diffs:
         return ""
-    rejected = pairs_holm(diffs)
     lines = []
     for name in sets:
         ran = [p for p in pairs if name in diffs.get(p, {})]
@@ -109,10 +114,9 @@ def controls_markdown(sets: Mapping[str, Sequence[EpisodeRecord]]) -> str:
     """RESULTS.md's section on what NUE's lead over its two controls says, per set: over the swapped-maps control
     that it *reads its maps*, over the no-f_u ablation that it *uses uncertainty*; '' when neither ran beside NUE."""
     pairs = [(a, b) for a, b, _ in CONTROLS]
-    diffs = pair_differences(sets, pairs)
+    diffs, rejected = _compared(sets, pairs)
     if not diffs:
         return ""
-    rejected = pairs_holm(diffs)
     lines = []
     for name in sets:
         said = []
